@@ -1,0 +1,59 @@
+"""The ``episcatter`` command line (DESIGN §4).
+
+Each subcommand lives in its own ``cmd_<name>`` module exposing
+``add_arguments(parser)`` and ``run(args) -> int``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+COMMANDS = {
+    "render": "render a scene with one of our integrators (or the scene's own)",
+    "reference": "volpath max_depth=2 ground truth of a scene, cached",
+    "compare": "error metrics of a test image against a reference",
+    "bench": "time and error of integrators on scenes, with parameter sweeps",
+    "epipolar": "epipolar geometry diagnostics of a scene",
+}
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="episcatter",
+        description="Single scattering with volumetric shadows for Mitsuba 3.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, help_text in COMMANDS.items():
+        try:
+            module = importlib.import_module(f"episcatter.cmd_{name}")
+        except ModuleNotFoundError as err:
+            if err.name != f"episcatter.cmd_{name}":
+                raise
+            continue
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def user_error(err: BaseException) -> BaseException:
+    """The error a user should see: mi.render wraps ValueErrors raised inside
+    an integrator in a RuntimeError ('error while performing a custom
+    differentiable operation')."""
+    while isinstance(err, RuntimeError) and isinstance(err.__cause__, Exception):
+        err = err.__cause__
+    return err
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except (ValueError, FileNotFoundError, RuntimeError, ImportError) as err:
+        err = user_error(err)
+        print(f"episcatter {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

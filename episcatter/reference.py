@@ -1,0 +1,347 @@
+"""Ground-truth and working-reference images, cached on disk (DESIGN §2).
+
+Two kinds of reference are rendered from the *same* scene file:
+
+``volpath``
+    Mitsuba's ``volpath`` with ``max_depth=2``: the unbiased ground truth.
+    The scene's own integrator is used when it already is ``volpath`` with
+    ``max_depth=2``; otherwise a fresh ``volpath`` (``max_depth=2``) is built.
+    The sidecar says which (``integrator_source``).
+``exact``
+    ``raymarch`` with ``visibility="exact"`` and many ``steps``: deterministic
+    along each camera ray, the working reference once it agrees with volpath.
+    Its samples per pixel only antialias (jittered box filter).
+
+Either is rendered in chunks of ``chunk`` samples per pixel with distinct
+seeds (0, 1, 2, ...).  Even chunks accumulate into ``half_a``, odd chunks into
+``half_b``: two statistically independent images with equal sample counts, so
+:func:`episcatter.metrics.noise_relmse` estimates the noise of their mean (the
+reference itself) without a second render.
+
+Files: ``<stem>-<kind>-<key>-spp<N>.exr`` (layers ``full``, ``half_a``,
+``half_b``) plus ``.json`` sidecar with the same stem, in :func:`default_cache_dir`.
+``key`` hashes the scene file's bytes, the ``-D`` defines and the kind's
+settings; the resolution is fixed by those two, and is recorded (and checked)
+in the sidecar.  The chunk size is not part of the key (it does not change
+what the image converges to).
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import os
+import platform
+import time
+
+import numpy as np
+
+from . import metrics
+from .imageio import read_exr, write_exr
+from .scene_loading import load_scene, make_integrator, scene_key
+
+KINDS = ("volpath", "exact")
+DEFAULT_SPP = {"volpath": 4096, "exact": 16}
+DEFAULT_CHUNK = {"volpath": 64, "exact": 4}
+DEFAULT_EXACT_STEPS = 1024
+NOISE_BLOCKS = (1, 4, 8)
+VOLPATH_CLASS = "VolumetricPathIntegrator"
+
+
+# --------------------------------------------------------------------------
+# Paths and cache
+# --------------------------------------------------------------------------
+
+def default_cache_dir() -> str:
+    """``$EPISCATTER_CACHE`` if set, else ``~/.cache/episcatter/references``."""
+    env = os.environ.get("EPISCATTER_CACHE")
+    if env:
+        return os.path.abspath(os.path.expanduser(env))
+    return os.path.join(os.path.expanduser("~"), ".cache", "episcatter", "references")
+
+
+def _kind_settings(kind: str, steps: int | None) -> dict:
+    """The settings of a reference kind that change the image (part of the key)."""
+    if kind == "volpath":
+        return {"integrator": "volpath", "max_depth": 2}
+    if kind == "exact":
+        return {"integrator": "raymarch", "visibility": "exact",
+                "steps": int(steps or DEFAULT_EXACT_STEPS)}
+    raise ValueError(f"Reference kind '{kind}' is not one of {list(KINDS)}.")
+
+
+def reference_key(scene_path, defines=None, kind="volpath", steps=None) -> str:
+    """Cache key: hash of the scene file, the defines and the kind's settings."""
+    settings = _kind_settings(kind, steps)
+    extra = json.dumps(settings, sort_keys=True)
+    return scene_key(os.path.abspath(scene_path), _str_defines(defines), extra=extra)
+
+
+def reference_path(scene_path, defines=None, spp=None, kind="volpath", steps=None,
+                   cache_dir=None) -> str:
+    """Path of the cached EXR of this reference (whether or not it exists)."""
+    spp = int(spp or DEFAULT_SPP[kind])
+    stem = os.path.splitext(os.path.basename(scene_path))[0]
+    key = reference_key(scene_path, defines, kind, steps)
+    return os.path.join(cache_dir or default_cache_dir(), f"{stem}-{kind}-{key}-spp{spp}.exr")
+
+
+def sidecar_path(exr_path) -> str:
+    """The JSON sidecar next to a reference EXR."""
+    return os.path.splitext(os.fspath(exr_path))[0] + ".json"
+
+
+def load_reference(path) -> tuple[np.ndarray, dict]:
+    """(full RGB image (H, W, 3) float32, sidecar dict) of a reference EXR.
+
+    The sidecar holds the halves' layer names; they are read with
+    :func:`load_halves`.  A missing sidecar gives an empty info dict.
+    """
+    layers = read_exr(path)
+    info = {}
+    side = sidecar_path(path)
+    if os.path.isfile(side):
+        with open(side) as f:
+            info = json.load(f)
+        info["path"] = os.path.abspath(os.fspath(path))
+    return np.ascontiguousarray(layers["full"][..., :3]), info
+
+
+def load_halves(path) -> tuple[np.ndarray, np.ndarray]:
+    """The two independent half images stored in a reference EXR."""
+    layers = read_exr(path)
+    return layers["half_a"], layers["half_b"]
+
+
+def _str_defines(defines) -> dict:
+    return {str(k): str(v) for k, v in (defines or {}).items()}
+
+
+# --------------------------------------------------------------------------
+# Rendering helpers (also used by episcatter.bench)
+# --------------------------------------------------------------------------
+
+def unwrap_render_error(exc: BaseException) -> BaseException:
+    """The user-facing cause of a ``mi.render`` failure.
+
+    ``mi.render`` runs the integrator inside a Dr.Jit custom op, so a
+    ``ValueError`` raised by an integrator (e.g. an unsupported scene)
+    arrives as the ``__cause__`` of a ``RuntimeError``.  Returns that
+    ``ValueError`` if there is one in the cause chain, else ``exc``.
+    """
+    seen = set()
+    cur = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, ValueError):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return exc
+
+
+def render_rgb(scene, integrator, spp: int = 0, seed: int = 0) -> np.ndarray:
+    """``mi.render`` to a finished (H, W, 3) float32 NumPy image.
+
+    Waits for the kernels (``dr.eval`` + ``dr.sync_thread``) and re-raises an
+    integrator's ``ValueError`` itself instead of Dr.Jit's wrapper.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    try:
+        img = mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed))
+        dr.eval(img)
+        dr.sync_thread()
+    except RuntimeError as exc:
+        cause = unwrap_render_error(exc)
+        if cause is exc:
+            raise
+        raise cause from None
+    arr = np.array(img, dtype=np.float32)
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, axis=-1)
+    return np.ascontiguousarray(arr[..., :3])
+
+
+def _is_volpath_depth2(integrator) -> bool:
+    """Whether a Mitsuba integrator is volpath with max_depth = 2."""
+    if integrator is None or integrator.class_name() != VOLPATH_CLASS:
+        return False
+    text = str(integrator).replace(" ", "")
+    return "max_depth=2," in text or "max_depth=2\n" in text
+
+
+def reference_integrator(scene, kind: str, steps: int | None = None):
+    """(integrator, source, description) for a reference of ``kind``."""
+    settings = _kind_settings(kind, steps)
+    if kind == "volpath":
+        own = scene.integrator()
+        if _is_volpath_depth2(own):
+            return own, "scene", "the scene's own volpath (max_depth=2)"
+        integ = make_integrator("volpath", {"max_depth": 2})
+        return integ, "fresh", "a fresh volpath (max_depth=2); the scene's integrator was " \
+            f"{own.class_name() if own is not None else 'none'}"
+    props = {k: v for k, v in settings.items() if k != "integrator"}
+    integ = make_integrator("raymarch", props)
+    return integ, "fresh", f"raymarch visibility=exact steps={props['steps']}"
+
+
+def chunk_plan(spp: int, chunk: int) -> list[int]:
+    """Samples per pixel of each chunk: an even number of chunks of at most
+    ``chunk`` spp, half of the samples in the even chunks and half in the odd
+    ones, so the two halves have equal sample counts."""
+    spp, chunk = int(spp), int(chunk)
+    if spp < 2 or spp % 2:
+        raise ValueError(f"spp = {spp} must be even and >= 2: the reference is two "
+                         "independent halves of spp/2 samples each.")
+    if chunk < 1:
+        raise ValueError(f"chunk = {chunk} must be >= 1.")
+    per_half = math.ceil((spp // 2) / chunk)
+    half_spp = spp // 2
+    sizes = [half_spp // per_half + (1 if i < half_spp % per_half else 0)
+             for i in range(per_half)]
+    return [s for s in sizes for _ in range(2)]
+
+
+def _environment() -> dict:
+    import drjit as dr
+    import mitsuba as mi
+
+    return {"mitsuba": mi.__version__, "drjit": dr.__version__, "variant": mi.variant(),
+            "numpy": np.__version__, "python": platform.python_version(),
+            "platform": platform.platform(), "cpu_count": os.cpu_count(),
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+
+
+def noise_levels(half_a, half_b, eps: float = metrics.DEFAULT_EPS,
+                 blocks=NOISE_BLOCKS) -> dict:
+    """relMSE noise of the mean of two halves at several block sizes."""
+    out = {"eps": float(eps)}
+    h, w = np.shape(half_a)[:2]
+    for k in blocks:
+        if k <= min(h, w):
+            out[f"block_{k}"] = metrics.noise_relmse(half_a, half_b, block=k, eps=eps)
+    return out
+
+
+# --------------------------------------------------------------------------
+# The reference itself
+# --------------------------------------------------------------------------
+
+def _accumulate(scene, integrator, sizes, progress, desc):
+    """Render the chunks; returns (half_a, half_b, seconds of each chunk)."""
+    from tqdm.auto import tqdm
+
+    halves = [None, None]
+    weights = [0, 0]
+    seconds = []
+    for seed, n in enumerate(tqdm(sizes, desc=desc, unit="chunk", disable=not progress)):
+        t0 = time.perf_counter()
+        img = render_rgb(scene, integrator, spp=n, seed=seed).astype(np.float64)
+        seconds.append(time.perf_counter() - t0)
+        side = seed % 2
+        halves[side] = img * n if halves[side] is None else halves[side] + img * n
+        weights[side] += n
+    return halves[0] / weights[0], halves[1] / weights[1], seconds
+
+
+def _write_atomic(path, layers, info) -> None:
+    """EXR then sidecar, each written to a temporary name and renamed, so a
+    concurrent reader never sees a partial file."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    tmp = f"{path}.{os.getpid()}.tmp.exr"
+    write_exr(tmp, layers, metadata={"episcatter_reference": json.dumps(info, sort_keys=True)})
+    os.replace(tmp, path)
+    side = sidecar_path(path)
+    tmp_side = f"{side}.{os.getpid()}.tmp"
+    with open(tmp_side, "w") as f:
+        json.dump(info, f, indent=2, sort_keys=True)
+        f.write("\n")
+    os.replace(tmp_side, side)
+
+
+def _cached(path, spp, kind):
+    """The cached (rgb, info) at ``path`` if complete and consistent, else None."""
+    if not (os.path.isfile(path) and os.path.isfile(sidecar_path(path))):
+        return None
+    rgb, info = load_reference(path)
+    if info.get("spp") != spp or info.get("kind") != kind:
+        return None
+    res = info.get("resolution")
+    if res and list(rgb.shape[1::-1]) != list(res):
+        return None
+    return rgb, info
+
+
+def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=None,
+                     progress=True, force=False, kind="volpath", steps=None,
+                     eps=metrics.DEFAULT_EPS) -> tuple[np.ndarray, dict]:
+    """Render (or load from the cache) a reference image of a scene file.
+
+    Parameters
+    ----------
+    scene_path, defines:
+        Scene XML and its ``-D`` defaults (``{'res_x': 64, ...}``).
+    spp, chunk:
+        Total samples per pixel (even) and samples per chunk.  Defaults:
+        volpath 4096 / 64, exact 16 / 4.
+    cache_dir:
+        Where the EXR + JSON go (default :func:`default_cache_dir`).
+    progress:
+        tqdm bar over the chunks.
+    force:
+        Re-render even if the cache holds this reference.
+    kind, steps:
+        ``volpath`` (ground truth) or ``exact`` (``raymarch
+        visibility=exact steps=steps``, default 1024 steps).
+    eps:
+        Regularizer of the relMSE noise estimate.
+
+    Returns ``(rgb, info)``: the (H, W, 3) float32 image (mean of the two
+    halves) and the sidecar dict (see module docstring and
+    ``info['path']``).  A cache hit only reads the files.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"Reference kind '{kind}' is not one of {list(KINDS)}.")
+    spp = int(spp or DEFAULT_SPP[kind])
+    chunk = int(chunk or DEFAULT_CHUNK[kind])
+    sizes = chunk_plan(spp, chunk)
+    scene_path = os.path.abspath(scene_path)
+    defines = _str_defines(defines)
+    path = reference_path(scene_path, defines, spp, kind, steps, cache_dir)
+    if not force:
+        hit = _cached(path, spp, kind)
+        if hit is not None:
+            return hit
+
+    t0 = time.perf_counter()
+    scene = load_scene(scene_path, defines)
+    integrator, source, description = reference_integrator(scene, kind, steps)
+    half_a, half_b, seconds = _accumulate(scene, integrator, sizes, progress,
+                                          f"{kind} reference {os.path.basename(scene_path)}")
+    wall = time.perf_counter() - t0
+    full = 0.5 * (half_a + half_b)
+    info = {
+        "kind": kind,
+        "settings": _kind_settings(kind, steps),
+        "integrator": description,
+        "integrator_source": source,
+        "spp": spp,
+        "chunk": chunk,
+        "chunk_spp": sizes,
+        "seeds": list(range(len(sizes))),
+        "halves": {"half_a": "even chunks (seeds 0, 2, ...)",
+                   "half_b": "odd chunks (seeds 1, 3, ...)",
+                   "spp_each": spp // 2},
+        "wall_time_s": wall,
+        "chunk_time_s": seconds,
+        "resolution": [int(full.shape[1]), int(full.shape[0])],
+        "scene": scene_path,
+        "defines": defines,
+        "scene_key": reference_key(scene_path, defines, kind, steps),
+        "relmse_noise": noise_levels(half_a, half_b, eps),
+        "path": path,
+        **_environment(),
+    }
+    _write_atomic(path, {"full": full, "half_a": half_a, "half_b": half_b}, info)
+    return full.astype(np.float32), info

@@ -1,0 +1,78 @@
+"""Loading scene files and building integrators from command-line strings.
+
+Shared by every CLI command and experiment: ``load_scene`` reads an ordinary
+Mitsuba XML file with ``-D name=value`` defaults (building the suite's
+generated meshes first when the file belongs to ``scenes/``), and
+``make_integrator`` turns ``-i TYPE -p key=value`` into a Mitsuba integrator.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+
+import integrators  # noqa: F401  (registers our plugins, checks LLVM)
+import mitsuba as mi
+
+
+def parse_value(text: str):
+    """'true'/'false' -> bool, integers -> int, floats -> float, else str."""
+    low = text.strip().lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def parse_assignments(items) -> dict:
+    """['a=1', 'b=x'] -> {'a': 1, 'b': 'x'}; a clear error for a missing '='."""
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise ValueError(f"'{item}' is not of the form name=value.")
+        key, value = item.split("=", 1)
+        out[key.strip()] = parse_value(value)
+    return out
+
+
+def load_scene(path: str, defines: dict | None = None):
+    """mi.load_file with XML defaults; suite assets are built on first use."""
+    path = os.path.abspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"Scene file '{path}' does not exist.")
+    scenes_dir = os.path.join(os.path.dirname(os.path.dirname(__file__)), "scenes")
+    if os.path.dirname(path) == os.path.abspath(scenes_dir):
+        import scenes
+        scenes.ensure_assets()
+    defines = {k: str(v) for k, v in (defines or {}).items()}
+    return mi.load_file(path, **defines)
+
+
+def make_integrator(kind: str | None, props: dict | None = None, scene=None):
+    """Integrator ``kind`` with properties, or the scene's own if kind is None."""
+    if kind is None:
+        if props:
+            raise ValueError("-p/--param needs -i/--integrator to say which integrator.")
+        if scene is None:
+            raise ValueError("No integrator type given and no scene to take it from.")
+        return scene.integrator()
+    d = {"type": kind}
+    d.update(props or {})
+    if kind == "volpath" and "max_depth" not in d:
+        d["max_depth"] = 2
+    return mi.load_dict(d)
+
+
+def scene_key(path: str, defines: dict | None = None, extra: str = "") -> str:
+    """Hash of the scene file's bytes (and of files it references in its
+    folder tree), the defines and ``extra``: a cache key for references."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        h.update(f.read())
+    for k in sorted((defines or {}).items()):
+        h.update(repr(k).encode())
+    h.update(extra.encode())
+    return h.hexdigest()[:16]
