@@ -39,6 +39,9 @@ def _register_for_current_variant(*_):
 
 
 if mi.variant() is None:
-    mi.set_variant(DEFAULT_VARIANT)
+    try:
+        mi.set_variant(DEFAULT_VARIANT)
+    except ImportError as err:  # Dr.Jit found no LLVM it accepts (e.g. only 14)
+        raise _llvm.LLVMVersionError(f"{err} {_llvm.FIX}") from err
 _register_for_current_variant()
 mi.detail.add_variant_callback(_register_for_current_variant)

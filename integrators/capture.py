@@ -266,9 +266,7 @@ def capture_shadow_map(params, camera_capture: CameraCapture, res: int) -> Shado
         sm = ShadowMap(kind="cube", res=res, depth=mi.Float(0), frames=frames,
                        tan_half=1.0, origin=np.asarray(light.position))
     o, d = sm.texel_rays()
-    ray = dr.zeros(mi.Ray3f)
-    ray.o, ray.d = o, d
-    si, t = first_surface(params.scene, ray)
+    si, t = first_surface(params.scene, mi.Ray3f(o, mi.Vector3f(d)))
     sm.depth = dr.select(si.is_valid(), t, dr.inf)
     sm.bias = 1e-4 * extent
     dr.eval(sm.depth)

@@ -234,7 +234,7 @@ class FilteredBasis:
     texels of ``i``'s region up to ``i``; ``W[row, i]`` = the weight sum
     of that prefix; ``z_lo/z_hi[row, r]`` = depth range of region ``r``.
     """
-    B_bar: mi.TensorXf   # (n_rows, n, M)
+    B_bar: mi.TensorXf   # (n_rows, n, M); mi.TensorXf16 if prefiltered with half=True
     W: mi.TensorXf       # (n_rows, n)
     z_lo: mi.TensorXf    # (n_rows, regions)
     z_hi: mi.TensorXf    # (n_rows, regions)
@@ -317,7 +317,7 @@ def depth_map(z_lo, z_hi, fit_depth: bool):
 
 
 def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
-                  fit_depth: bool = False) -> FilteredBasis:
+                  fit_depth: bool = False, half: bool = False) -> FilteredBasis:
     """Weighted running prefix sums of the basis along every row (Listings 1–3).
 
     ``z_rows``: blocker depths ``(n_rows, n)`` in [0, 1]; ``weights``: ``None``
@@ -327,6 +327,8 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     One Dr.Jit lane per (row, region, group of 8 bases) walks its texels left to
     right in a symbolic loop, computes the bases on the fly from the depth
     (Listing 3) and scatters the running normalised mix (Listing 2).
+    ``half=True`` stores ``B̄`` as float16 (half the memory and bandwidth; the
+    paper stores 8 bits, Appendix A): visibility error ≈ 1e-3.
     """
     M = check_M(M)
     z = _as_rows(z_rows)
@@ -348,7 +350,8 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     # first harmonic of the group: basis index g*G -> k0 = g*G/2 (0-based)
     k0 = mi.Float(g * (G // 2))
 
-    B_bar = dr.zeros(mi.Float, n_rows * n * M)
+    store = mi.Float16 if half else mi.Float
+    B_bar = dr.zeros(store, n_rows * n * M)
     W_out = dr.zeros(mi.Float, n_rows * n)
 
     def cond(i, W, Bb):
@@ -367,13 +370,14 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
         Bb = [dr.fma(b - bb, t, bb) for b, bb in zip(B, Bb)]
         base = texel * M + g * G
         for m in range(G):
-            dr.scatter(B_bar, Bb[m], base + m)
+            dr.scatter(B_bar, store(Bb[m]), base + m)
         dr.scatter(W_out, W, texel, active=g == 0)
         return i + 1, W, Bb
 
     dr.while_loop((mi.UInt32(start), mi.Float(0.0), [mi.Float(0.0)] * G), cond, body,
                   labels=("i", "W", "B_bar"), label="fourier_prefix_filter")
-    return FilteredBasis(mi.TensorXf(B_bar, shape=(n_rows, n, M)),
+    tensor = mi.TensorXf16 if half else mi.TensorXf
+    return FilteredBasis(tensor(B_bar, shape=(n_rows, n, M)),
                          mi.TensorXf(W_out, shape=(n_rows, n)),
                          z_lo, z_hi, M, regions, fit_depth)
 
@@ -480,9 +484,10 @@ def _lookup(fb, row, q, rho, z_r, a_shared, clamp, exact_bounds, active):
     else:
         a = a_shared
     base = (row * fb.n + q) * fb.M
+    source = fb.B_bar.array
     dot = mi.Float(0.0)
     for m in range(fb.M):
-        dot = dr.fma(a[m], dr.gather(mi.Float, fb.B_bar.array, base + m, inside), dot)
+        dot = dr.fma(a[m], mi.Float(dr.gather(type(source), source, base + m, inside)), dot)
     v = dot + 0.5
     if clamp:
         v = dr.clip(v, 0.0, 1.0)
@@ -579,8 +584,8 @@ def _timed(fn, reps: int):
 
 def bench_filter(n_rows: int = 1024, n: int = 1024, M: int = DEFAULT_M,
                  pixels: int = 1280 * 960, regions: int = 1, fit_depth: bool = False,
-                 clamp: bool = True, exact_bounds: bool = True, reps: int = 3,
-                 seed: int = 0) -> dict:
+                 clamp: bool = True, exact_bounds: bool = True, half: bool = False,
+                 reps: int = 3, seed: int = 0) -> dict:
     """Warm median times (s) of the prefilter and of the per-pixel evaluation.
 
     Random blocker rows (half the texels unblocked) and random rays; the cost
@@ -592,8 +597,11 @@ def bench_filter(n_rows: int = 1024, n: int = 1024, M: int = DEFAULT_M,
     z_rows = mi.TensorXf(z)
     w = transmittance_weights(mi.Float(np.full(n_rows, 2.0 / n, np.float32)), n)
     dr.eval(z_rows, w)
-    first_pre, prefilter = _timed(lambda: prefix_filter(z_rows, w, M, regions, fit_depth), reps)
-    fb = prefix_filter(z_rows, w, M, regions, fit_depth)
+    def prefilter_once():
+        return prefix_filter(z_rows, w, M, regions, fit_depth, half)
+
+    first_pre, prefilter = _timed(prefilter_once, reps)
+    fb = prefilter_once()
     dr.eval(fb)
     row = mi.UInt32(rng.integers(0, n_rows, pixels).astype(np.uint32))
     j = mi.Float((rng.random(pixels) * (n - 1)).astype(np.float32))
@@ -602,6 +610,6 @@ def bench_filter(n_rows: int = 1024, n: int = 1024, M: int = DEFAULT_M,
     first_ev, evaluate = _timed(
         lambda: filtered_visibility(fb, row, j, z_r, clamp, exact_bounds), reps)
     return dict(n_rows=n_rows, n=n, M=M, pixels=pixels, regions=regions,
-                fit_depth=fit_depth, prefilter_s=prefilter, evaluate_s=evaluate,
+                fit_depth=fit_depth, half=half, prefilter_s=prefilter, evaluate_s=evaluate,
                 prefilter_first_s=first_pre, evaluate_first_s=first_ev,
                 threads=dr.thread_count())

@@ -235,7 +235,8 @@ class _Problem(_Record):
     L: Float | None
     r_count: Int    # (n,)
     d_count: Int    # (n,)
-    delta_gamma: float
+    d_o: Int        # d and r as opaque kernel parameters, so that index
+    r_o: Int        # arithmetic does not recompile for every resolution
 
 
 def _counts(x, n, default):
@@ -247,12 +248,12 @@ def _counts(x, n, default):
     return dr.clip(c, 0, default)
 
 
-def _prepare(D, S_modes, A, B, L, r_count, d_count, delta_gamma) -> _Problem:
-    """Validate shapes and bring every input into flat Dr.Jit arrays."""
+def _layout(D, S_modes, A, B, L) -> _Layout:
+    """Validate the shapes (module docstring) and return the sizes."""
     if len(_shape_of(D)) != 2:
         raise ValueError(f"D must be (n, r), got {_shape_of(D)}")
     n, r = _shape_of(D)
-    beta_in, weight_in, (nS, d, M) = _split_modes(S_modes)
+    _, _, (nS, d, M) = _split_modes(S_modes)
     if nS != n:
         raise ValueError(f"S has {nS} slices, D has {n}")
     A_shape, B_shape = _shape_of(A), _shape_of(B)
@@ -267,7 +268,16 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count, delta_gamma) -> _Problem:
     if any(c not in (1, C) for c in (CA, CB, CL)):
         raise ValueError(f"colour axes {CA}, {CB}, {CL} do not broadcast")
     lay = _Layout(n, r, d, M, N, C, colA or colB or colL, nA, CA, nB, CB, nL, CL)
+    if r > LOCAL_ARRAY_LIMIT:
+        raise ValueError(f"r = {r} view rays exceed {LOCAL_ARRAY_LIMIT}")
+    return lay
 
+
+def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
+    """Bring every input into flat Dr.Jit arrays (shapes checked by _layout)."""
+    lay = _layout(D, S_modes, A, B, L)
+    n, r, d, M = lay.n, lay.r, lay.d, lay.M
+    beta_in, weight_in, _ = _split_modes(S_modes)
     r_cnt, d_cnt = _counts(r_count, n, r), _counts(d_count, n, d)
     Df = _flat(D, Float)
     Df = dr.select(dr.isnan(Df), 0.0, Df)
@@ -285,7 +295,7 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count, delta_gamma) -> _Problem:
     beta = dr.select(weight != 0, beta, r)
     Lf = None if L is None else _flat(L, Float)
     return _Problem(lay, Df, beta, weight, _flat(A, Float), _flat(B, Float), Lf,
-                    r_cnt, d_cnt, float(delta_gamma))
+                    r_cnt, d_cnt, dr.opaque(Int, d), dr.opaque(Int, r))
 
 
 def _components(lay: _Layout, budget_per_leaf: int):
@@ -307,40 +317,40 @@ def _local_size(n: int) -> int:
 def _leaf(p: _Problem, s, g, comps):
     """Leaf values A_i(γ)·L(γ) of slice ``s``, light ray ``g`` (§6)."""
     lay = p.lay
-    sA = s if lay.nA > 1 else 0
+    rowA = s * p.d_o + g if lay.nA > 1 else g
+    rowL = s * p.d_o + g if lay.nL > 1 else g
     out = []
     for c, i in comps:
-        a = dr.gather(Float, p.A, ((sA * lay.d + g) * lay.CA + c % lay.CA) * lay.N + i)
+        a = dr.gather(Float, p.A, (rowA * lay.CA + c % lay.CA) * lay.N + i)
         if p.L is not None:
-            sL = s if lay.nL > 1 else 0
-            a = a * dr.gather(Float, p.L, (sL * lay.d + g) * lay.CL + c % lay.CL)
+            a = a * dr.gather(Float, p.L, rowL * lay.CL + c % lay.CL)
         out.append(a)
     return out
 
 
 def _view_factor(p: _Problem, s, beta, comps):
-    """B_i(β) of slice ``s``, view ray ``beta``, times Δγ."""
+    """B_i(β) of slice ``s``, view ray ``beta``."""
     lay = p.lay
-    sB = s if lay.nB > 1 else 0
-    return [dr.gather(Float, p.B, ((sB * lay.r + beta) * lay.CB + c % lay.CB) * lay.N + i)
-            * p.delta_gamma for c, i in comps]
+    row = s * p.r_o + beta if lay.nB > 1 else beta
+    return [dr.gather(Float, p.B, (row * lay.CB + c % lay.CB) * lay.N + i)
+            for c, i in comps]
 
 
 def _depth_split(p: _Problem, s, beta, d_s):
     """(k0, f) of Fig. 6: D clamped to [0, d_s], k0 = min(⌊D⌋, d_s − 1) ≥ 0."""
-    Dc = dr.clip(dr.gather(Float, p.D, s * p.lay.r + beta), 0.0, Float(d_s))
+    Dc = dr.clip(dr.gather(Float, p.D, s * p.r_o + beta), 0.0, Float(d_s))
     k0 = dr.maximum(dr.minimum(Int(dr.floor(Dc)), d_s - 1), 0)
     return k0, Dc - Float(k0)
 
 
 def _accumulate(p: _Problem, out, s, beta, comps, q, active=True):
-    """out[s, β, c] += Σ_{i in chunk} Δγ B_i(β) q_i."""
+    """out[s, β, c] += Σ_{i in chunk} B_i(β) q_i."""
     Bv = _view_factor(p, s, beta, comps)
     per_channel = {}
     for (c, _), b, qi in zip(comps, Bv, q):
         per_channel[c] = per_channel.get(c, 0) + b * qi
     for c, v in per_channel.items():
-        dr.scatter_reduce(dr.ReduceOp.Add, out, v, (s * p.lay.r + beta) * p.lay.C + c, active)
+        dr.scatter_reduce(dr.ReduceOp.Add, out, v, (s * p.r_o + beta) * p.lay.C + c, active)
 
 
 # --------------------------------------------------------------------------
@@ -380,7 +390,7 @@ def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w
     g = Int(0)
     while g < d_s:                       # histogram of ⌈β_m⌉
         for m in range(lay.M):
-            bm = dr.gather(Int, p.beta, (slices * lay.d + g) * lay.M + m)
+            bm = dr.gather(Int, p.beta, (slices * p.d_o + g) * lay.M + m)
             if bm < r_s:
                 hist[bm] = hist[bm] + 1
         g += 1
@@ -394,7 +404,7 @@ def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w
     g = Int(0)
     while g < d_s:                       # stable placement
         for m in range(lay.M):
-            j = (slices * lay.d + g) * lay.M + m
+            j = (slices * p.d_o + g) * lay.M + m
             bm = dr.gather(Int, p.beta, j)
             if bm < r_s:
                 pos = hist[bm]
@@ -416,7 +426,8 @@ def _termination_lists(p: _Problem, slices: Int, counts: Int) -> _Updates:
     # body fails with "remains dirty".
     dr.make_opaque(gamma, beta, weight)
     if total:
-        _bucket_kernel(p, slices, begin, _local_size(p.lay.r), gamma, beta, weight)
+        hist_size = min(_local_size(p.lay.r), LOCAL_ARRAY_LIMIT)
+        _bucket_kernel(p, slices, begin, hist_size, gamma, beta, weight)
         dr.eval(gamma, beta, weight)
     return _Updates(begin, end, gamma, beta, weight)
 
@@ -522,8 +533,8 @@ def _closed_form_shared(p: _Problem, slices: Int, out: Float):
                                    _leaf(p, Int(0), dr.minimum(gam, lay.d - 1), [ci])[0],
                                    0.0)) for ci in comps]
     lane = dr.arange(Int, dr.width(slices) * lay.r)
-    s = dr.gather(Int, slices, lane // lay.r)
-    beta = lane % lay.r
+    s = dr.gather(Int, slices, lane // p.r_o)
+    beta = lane % p.r_o
     active = beta < dr.gather(Int, p.r_count, s)
     k0, f = _depth_split(p, s, beta, dr.gather(Int, p.d_count, s))
     q = [dr.lerp(dr.gather(Float, c_k, k0), dr.gather(Float, c_k, k0 + 1), f)
@@ -584,8 +595,11 @@ def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
     ``skip_unblocked`` (default) slices in which no blocker acts take the
     closed form instead of the tree.  Returns a detached ``TensorXf`` of
     shape (n, r) or (n, r, C)."""
-    p = _prepare(D, S_modes, A, B, L, r_count, d_count, delta_gamma)
-    lay = p.lay
+    lay = _layout(D, S_modes, A, B, L)
+    shape = (lay.n, lay.r, lay.C) if lay.coloured else (lay.n, lay.r)
+    if lay.n * lay.r * lay.d == 0:
+        return dr.zeros(TensorXf, shape)
+    p = _prepare(D, S_modes, A, B, L, r_count, d_count)
     out = dr.zeros(Float, lay.n * lay.r * lay.C)
     dr.make_opaque(out)                  # scatter target (see _termination_lists)
     counts = _updates_per_slice(p)
@@ -596,8 +610,7 @@ def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
         _run_tree(p, tree_slices, dr.gather(Int, counts, tree_slices), out)
     if dr.width(free_slices):
         _run_closed_form(p, free_slices, out)
-    shape = (lay.n, lay.r, lay.C) if lay.coloured else (lay.n, lay.r)
-    return TensorXf(out, shape)
+    return TensorXf(out * Float(delta_gamma), shape)
 
 
 def _reference_layout(x, n, length, has_N):
@@ -618,7 +631,7 @@ def integrate_slices_reference(D, S_modes, A, B, *, L=None, r_count=None, d_coun
     modes with w_m ≠ 0 and ⌈β_m⌉ ≤ β (applied *before* the query at ⌈β_m⌉),
     out[β] = Δγ Σ_i B_i(β) Σ_γ A_i(γ) L(γ) V(γ, β) clip(clip(D, 0, d) − γ, 0, 1).
     float64 inside, float32 result (n, r) or (n, r, C)."""
-    lay = _prepare(D, S_modes, A, B, L, r_count, d_count, delta_gamma).lay  # validation
+    lay = _layout(D, S_modes, A, B, L)
     Dn = np.nan_to_num(_to_numpy(D), nan=0.0)
     n, r = Dn.shape
     beta_in, weight_in, (_, d, M) = _split_modes(S_modes)
