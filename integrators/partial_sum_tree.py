@@ -85,6 +85,12 @@ Fast path (:func:`integrate_slices`)
    symbolic loop, applies the fractional updates (§7) whose β_m ≤ β and
    answers the two prefix queries (Fig. 6; the second as P(k0) + f·b[k0],
    the "complete lowest level" of §5).
+
+Limits: d ≤ 32 767 light rays (the tree of d·K entries plus the d
+visibilities live in lane-local memory, :data:`LOCAL_BUDGET`; K = C·N is
+split over several sweeps when it does not fit), r ≤ 65 535 view rays.
+Kernels are compiled per (M, N, C, broadcast flags, rounded local sizes);
+timings must be taken on a second call.
 """
 from __future__ import annotations
 
@@ -178,7 +184,7 @@ def _split_modes(S_modes):
 
 
 def _factor_layout(shape, name, n, length, with_n_axis):
-    """(n_rows, length, C) of A/B/L after the documented shape rules.
+    """(rows ∈ {1, n}, C, has colour axis) of A/B/L (module docstring shapes).
 
     ``with_n_axis`` is the number of trailing axes (N for A and B, 0 for L)."""
     core = len(shape) - with_n_axis
@@ -208,7 +214,9 @@ class _Record:
 
 
 class _Layout(_Record):
-    """Static sizes of one problem (baked into the kernels as literals)."""
+    """Sizes of one problem.  M, N, C and the colour/broadcast flags are
+    baked into the kernels (unrolled); d and r reach the kernels' index
+    arithmetic as opaque parameters (``_Problem.d_o``, ``r_o``)."""
 
     n: int          # slices
     r: int          # padded view rays per slice
@@ -445,16 +453,23 @@ def _tree_index(i, k, K):
 def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_size, out):
     """INTEGRATESLICE (Fig. 6) for the slices ``slices``, components ``comps``.
 
-    Node i (1-based) of the Fenwick tree holds Σ b[γ] over γ in
-    (i − lowbit(i), i]; ``vis[γ]`` is V(γ, β) of the current β (the complete
-    lowest level of §5, used for the second query of the lerp)."""
+    Node i (1-based) of the Fenwick tree [Fenwick 1994] holds Σ b[γ] over γ
+    in (i − lowbit(i), i] -- the left children of Fig. 5 only (half-tree);
+    ``vis[γ]`` is V(γ, β) of the current β (the complete lowest level of §5,
+    which makes the second query of the lerp P(k0) + f·b[k0]).
+
+    One function on purpose: moving the loops that write the lane-local
+    arrays into helper functions or methods gave silently wrong sums or
+    "computation references variables from a loop that was optimized away"
+    with Dr.Jit 1.5."""
     K = len(comps)
     r_s = dr.gather(Int, p.r_count, slices)
     d_s = dr.gather(Int, p.d_count, slices)
     tree = dr.alloc_local(Float, tree_size)
     vis = dr.alloc_local(Float, leaf_size)
 
-    # BUILD-TREE in O(d): leaves, then each node adds itself to its parent.
+    # BUILD-TREE in O(d): leaves (and vis = 1), then each node adds itself
+    # to its parent.
     i = Int(1)
     while i <= d_s:
         vis[i - 1] = Float(1.0)
