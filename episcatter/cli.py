@@ -11,7 +11,7 @@ import sys
 
 COMMANDS = {
     "render": "render a scene with one of our integrators (or the scene's own)",
-    "reference": "volpath max_depth=2 ground truth of a scene, cached",
+    "reference": "ground truth of a scene (volpath max_depth=2, or the exact ray marcher), cached",
     "compare": "error metrics of a test image against a reference",
     "bench": "time and error of integrators on scenes, with parameter sweeps",
     "epipolar": "epipolar geometry diagnostics of a scene",

@@ -86,6 +86,26 @@ def reference_path(scene_path, defines=None, spp=None, kind="volpath", steps=Non
     return os.path.join(cache_dir or default_cache_dir(), f"{stem}-{kind}-{key}-spp{spp}.exr")
 
 
+def find_cached_reference(scene_path, defines=None, kind="volpath", steps=None,
+                          cache_dir=None) -> str | None:
+    """The cached reference EXR of this scene file + defines with the most
+    samples per pixel (any spp), or None if there is none."""
+    folder = cache_dir or default_cache_dir()
+    if not os.path.isdir(folder):
+        return None
+    stem = os.path.splitext(os.path.basename(scene_path))[0]
+    prefix = f"{stem}-{kind}-{reference_key(scene_path, defines, kind, steps)}-spp"
+    best, best_spp = None, -1
+    for name in os.listdir(folder):
+        if not (name.startswith(prefix) and name.endswith(".exr")):
+            continue
+        spp_text = name[len(prefix):-len(".exr")]
+        path = os.path.join(folder, name)
+        if spp_text.isdigit() and int(spp_text) > best_spp and os.path.isfile(sidecar_path(path)):
+            best, best_spp = path, int(spp_text)
+    return best
+
+
 def sidecar_path(exr_path) -> str:
     """The JSON sidecar next to a reference EXR."""
     return os.path.splitext(os.fspath(exr_path))[0] + ".json"
@@ -203,7 +223,8 @@ def chunk_plan(spp: int, chunk: int) -> list[int]:
     return [s for s in sizes for _ in range(2)]
 
 
-def _environment() -> dict:
+def environment() -> dict:
+    """Versions, platform, CPU count and the date (UTC), for sidecars and benchmarks."""
     import drjit as dr
     import mitsuba as mi
 
@@ -312,6 +333,7 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
     if not force:
         hit = _cached(path, spp, kind)
         if hit is not None:
+            hit[1]["cached"] = True
             return hit
 
     t0 = time.perf_counter()
@@ -341,7 +363,8 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
         "scene_key": reference_key(scene_path, defines, kind, steps),
         "relmse_noise": noise_levels(half_a, half_b, eps),
         "path": path,
-        **_environment(),
+        **environment(),
     }
     _write_atomic(path, {"full": full, "half_a": half_a, "half_b": half_b}, info)
+    info["cached"] = False
     return full.astype(np.float32), info

@@ -67,8 +67,10 @@ def make_integrator(kind: str | None, props: dict | None = None, scene=None):
 
 
 def scene_key(path: str, defines: dict | None = None, extra: str = "") -> str:
-    """Hash of the scene file's bytes (and of files it references in its
-    folder tree), the defines and ``extra``: a cache key for references."""
+    """Hash of the scene file's bytes, the defines and ``extra``: a cache key
+    for references.  Files the scene references (meshes, textures) are not
+    hashed: the suite generates them deterministically; if you edit one by
+    hand, re-render its reference with ``--force``."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         h.update(f.read())

@@ -49,6 +49,11 @@ def first_surface(scene, ray, active=True):
     return si, t
 
 
+def seed_offset(seed: int, salt: int) -> int:
+    """A 64-bit PCG32 state offset for ``seed`` (wrapped, never overflowing)."""
+    return (salt * (int(seed) + 1)) & 0xFFFFFFFFFFFFFFFF
+
+
 def _camera_positions(width, height, spp, jitter, seed):
     """Film positions (in [0,1]^2) and pixel indices of spp samples per pixel."""
     n = width * height * spp
@@ -57,7 +62,7 @@ def _camera_positions(width, height, spp, jitter, seed):
     px = mi.Float(pixel % width)
     py = mi.Float(pixel // width)
     if jitter:
-        rng = mi.PCG32(size=n, initstate=mi.UInt64(idx) + 0x9E3779B97F4A7C15 * (seed + 1))
+        rng = mi.PCG32(size=n, initstate=mi.UInt64(idx) + seed_offset(seed, 0x9E3779B97F4A7C15))
         ox, oy = rng.next_float32(), rng.next_float32()
     else:
         ox = oy = mi.Float(0.5)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .capture import capture_shadow_map
+from .capture import capture_shadow_map, seed_offset
 from .light_transport import (color, light_transmittance, phase_eval, sample_light,
                               segment_box, segment_weight, visible_exact)
 from .template import EpiscatterIntegrator, read_choice, read_number
@@ -47,7 +47,7 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         if self.visibility == "shadowmap":
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        return march(params, cap, self.steps, shadow_map, self.jitter)
+        return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed)
 
 
 def march(params, cap, steps, shadow_map=None, jitter=False, seed=0):
@@ -57,7 +57,7 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0):
     sigma_s = color(params.medium.sigma_s)
     dt = cap.d / steps
     if jitter:
-        rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + 0x853C49E6748FEA9B * (seed + 1))
+        rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + seed_offset(seed, 0x853C49E6748FEA9B))
         offset = rng.next_float32()
     else:
         offset = mi.Float(0.5)

@@ -84,6 +84,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                                              integer=True)
         self.jitter_pixels = props.get("jitter_pixels", None)
         self.timings: dict[str, float] = {}
+        self.render_seed = 0
         self.read_properties(props)
 
     # -- hooks ------------------------------------------------------------------
@@ -96,7 +97,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
 
     # -- timing -----------------------------------------------------------------
     @contextmanager
-    def stage(self, name, *results):
+    def stage(self, name):
+        """Time a block; results appended to the yielded list are evaluated
+        (and waited for) before the clock stops."""
         t0 = time.perf_counter()
         out = []
         yield out
@@ -107,6 +110,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
     # -- the template -------------------------------------------------------------
     def render_layers(self, scene, sensor=0, seed=0, spp=0):
         self.timings = {}
+        self.render_seed = int(seed)
         t_start = time.perf_counter()
         with self.stage("validate"):
             params = SceneParams.from_scene(scene, sensor)

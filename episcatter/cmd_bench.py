@@ -1,0 +1,87 @@
+"""``episcatter bench SCENE... -i TYPE... [-p name=value]... [--sweep name=v1,v2,...]...
+[-D name=value]... [--reference volpath|exact|none] [--ref-spp N] [--repeats 3] [--block K] [--out DIR]``
+
+Times integrators on scenes over the cartesian product of the sweeps and
+measures their error against a cached reference (see
+:mod:`episcatter.bench`).  Writes ``bench.csv``, ``bench.json`` and
+``bench.png`` into ``--out`` (default ``results/bench/<scene stems>``) and
+prints the table.  Parameter names may be scoped to one integrator as
+``TYPE.name`` (``--sweep raymarch.steps=16,64``); ``spp`` is passed to
+``mi.render``.  Exit status 1 if any job failed (its error is in the table).
+The CLI (``episcatter/cli.py``) wires this module in through
+:func:`add_arguments` and :func:`run`.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+from . import metrics
+from .bench import format_table, run_bench
+from .reference import DEFAULT_EXACT_STEPS
+from .scene_loading import parse_assignments, parse_value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``bench`` arguments to ``parser``."""
+    parser.add_argument("scenes", nargs="+", metavar="SCENE", help="Mitsuba XML scene files")
+    parser.add_argument("-i", "--integrator", dest="integrators", nargs="+", action="extend",
+                        required=True, metavar="TYPE",
+                        help="integrator types to benchmark (raymarch, volpath, ...)")
+    parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="fixed parameter, TYPE.name for one integrator only (repeatable)")
+    parser.add_argument("--sweep", action="append", default=[], metavar="NAME=V1,V2,...",
+                        help="parameter values to sweep (repeatable; cartesian product)")
+    parser.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
+                        help="XML default, e.g. -D res_x=320 (repeatable)")
+    parser.add_argument("--reference", choices=("volpath", "exact", "none"), default="exact",
+                        help="reference for the errors: exact (raymarch visibility=exact, "
+                             "default), volpath (ground truth) or none")
+    parser.add_argument("--ref-spp", type=int, default=None,
+                        help="reference samples per pixel (default: see `episcatter reference`)")
+    parser.add_argument("--ref-chunk", type=int, default=None, help="reference spp per chunk")
+    parser.add_argument("--ref-steps", type=int, default=None,
+                        help=f"steps of the exact reference (default {DEFAULT_EXACT_STEPS})")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per job (median)")
+    parser.add_argument("--block", type=int, default=1, metavar="K",
+                        help="compare KxK block averages (matched footprint; default 1)")
+    parser.add_argument("--eps", type=float, default=metrics.DEFAULT_EPS,
+                        help="relMSE regularizer (default: %(default)g)")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="output folder (default: results/bench/<scene stems>)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def parse_sweeps(items) -> dict:
+    """['steps=16,64'] -> {'steps': [16, 64]}."""
+    sweeps = {}
+    for item in items or ():
+        if "=" not in item:
+            raise ValueError(f"--sweep '{item}' is not of the form name=v1,v2,...")
+        name, values = item.split("=", 1)
+        parsed = [parse_value(v) for v in values.split(",") if v.strip()]
+        if not parsed:
+            raise ValueError(f"--sweep '{item}' has no values.")
+        sweeps[name.strip()] = parsed
+    return sweeps
+
+
+def default_out_dir(scenes) -> str:
+    stems = "+".join(os.path.splitext(os.path.basename(s))[0] for s in scenes)
+    return os.path.join("results", "bench", stems)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark described by parsed ``args``; returns the exit status."""
+    out = args.out or default_out_dir(args.scenes)
+    results = run_bench(args.scenes, args.integrators, sweeps=parse_sweeps(args.sweep),
+                        defines=parse_assignments(args.define), reference=args.reference,
+                        out_dir=out, repeats=args.repeats, params=parse_assignments(args.param),
+                        block=args.block, eps=args.eps, ref_spp=args.ref_spp,
+                        ref_chunk=args.ref_chunk, ref_steps=args.ref_steps,
+                        progress=not args.no_progress)
+    print(format_table(results))
+    print(f"times: median of {args.repeats} runs after a warm-up; errors: relMSE vs the "
+          f"{args.reference} reference, {args.block}x{args.block} block averages")
+    print(f"wrote {os.path.join(out, 'bench.csv')}, bench.json, bench.png")
+    return 1 if any(r.get("error") for r in results) else 0

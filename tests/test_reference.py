@@ -1,0 +1,136 @@
+"""Tests of episcatter.reference and the `reference` subcommand (tiny renders)."""
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+
+from episcatter import cmd_reference, reference
+from episcatter.imageio import read_exr
+
+SCENE = os.path.join(os.path.dirname(__file__), "data", "tiny_scene.xml")
+TINY = {"res_x": 16, "res_y": 12}
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("EPISCATTER_CACHE", str(folder))
+    return folder
+
+
+def test_chunk_plan_gives_equal_halves():
+    for spp, chunk in [(2, 1), (64, 16), (64, 64), (100, 16), (6, 4)]:
+        sizes = reference.chunk_plan(spp, chunk)
+        assert sum(sizes) == spp and len(sizes) % 2 == 0
+        assert sum(sizes[0::2]) == sum(sizes[1::2]) == spp // 2
+        assert max(sizes) <= chunk
+    with pytest.raises(ValueError, match="even"):
+        reference.chunk_plan(7, 2)
+
+
+def test_cache_dir_follows_env(cache):
+    assert reference.default_cache_dir() == str(cache)
+    path = reference.reference_path(SCENE, TINY, 32)
+    assert os.path.dirname(path) == str(cache)
+    assert path.endswith("-spp32.exr") and "tiny_scene-volpath-" in path
+    assert reference.reference_path(SCENE, {"res_x": 8}, 32) != path
+    assert reference.reference_path(SCENE, TINY, 32, kind="exact") != path
+
+
+def test_reference_is_cached_with_sidecar(cache):
+    rgb, info = reference.render_reference(SCENE, TINY, spp=32, chunk=8, progress=False)
+    assert rgb.shape == (12, 16, 3) and np.all(np.isfinite(rgb)) and rgb.mean() > 0
+    assert not info["cached"]
+    for key in ("spp", "chunk", "seeds", "wall_time_s", "resolution", "scene", "defines",
+                "scene_key", "relmse_noise", "mitsuba", "drjit", "date", "integrator",
+                "integrator_source"):
+        assert key in info, key
+    assert info["spp"] == 32 and info["chunk"] == 8 and info["seeds"] == [0, 1, 2, 3]
+    assert info["resolution"] == [16, 12]
+    assert info["integrator_source"] == "scene"  # tiny_scene uses volpath max_depth=2
+    assert info["defines"] == {"res_x": "16", "res_y": "12"}
+
+    path = reference.reference_path(SCENE, TINY, 32)
+    assert info["path"] == path and os.path.isfile(reference.sidecar_path(path))
+    layers = read_exr(path)
+    assert set(layers) == {"full", "half_a", "half_b"}
+    np.testing.assert_allclose(layers["full"], 0.5 * (layers["half_a"] + layers["half_b"]),
+                               rtol=1e-6, atol=1e-7)
+    with open(reference.sidecar_path(path)) as f:
+        assert json.load(f)["scene_key"] == info["scene_key"]
+
+    t0 = time.perf_counter()
+    rgb2, info2 = reference.render_reference(SCENE, TINY, spp=32, chunk=8, progress=False)
+    assert time.perf_counter() - t0 < 0.5
+    assert info2["cached"] and np.array_equal(rgb, rgb2)
+    assert reference.find_cached_reference(SCENE, TINY) == path
+    assert reference.find_cached_reference(SCENE, {"res_x": 8}) is None
+
+
+def test_noise_estimate_positive_and_shrinks(cache):
+    _, low = reference.render_reference(SCENE, TINY, spp=16, chunk=4, progress=False)
+    _, high = reference.render_reference(SCENE, TINY, spp=256, chunk=64, progress=False)
+    n_low, n_high = low["relmse_noise"], high["relmse_noise"]
+    assert n_low["eps"] == pytest.approx(0.01)
+    for k in ("block_1", "block_4", "block_8"):
+        assert n_low[k] > 0 and n_high[k] > 0
+    for k in ("block_1", "block_4"):  # block 8 leaves 2 blocks: too few to compare
+        assert n_high[k] < 0.5 * n_low[k]  # ~1/16 expected for 16x the samples
+    assert n_low["block_4"] < n_low["block_1"]
+
+
+def test_force_rerenders(cache):
+    _, a = reference.render_reference(SCENE, TINY, spp=4, chunk=2, progress=False)
+    _, b = reference.render_reference(SCENE, TINY, spp=4, chunk=2, progress=False, force=True)
+    assert not b["cached"] and b["date"] >= a["date"]
+
+
+def test_fresh_volpath_when_scene_integrator_differs(cache, tmp_path):
+    text = open(SCENE).read().replace('<integer name="max_depth" value="2"/>',
+                                      '<integer name="max_depth" value="5"/>')
+    scene = tmp_path / "deep.xml"
+    scene.write_text(text)
+    _, info = reference.render_reference(str(scene), TINY, spp=2, chunk=1, progress=False)
+    assert info["integrator_source"] == "fresh"
+    assert "max_depth=2" in info["integrator"]
+
+
+def test_exact_reference_is_deterministic_at_pixel_centres(cache):
+    # chunk=1: one unjittered sample per pixel per chunk, so both halves agree.
+    rgb, info = reference.render_reference(SCENE, TINY, spp=2, chunk=1, kind="exact",
+                                           steps=32, progress=False)
+    assert info["kind"] == "exact" and info["settings"]["steps"] == 32
+    assert info["relmse_noise"]["block_1"] == 0.0
+    assert rgb.shape == (12, 16, 3) and rgb.mean() > 0
+
+
+def test_unwrap_render_error():
+    inner = ValueError("unsupported camera")
+    try:
+        try:
+            raise inner
+        except ValueError as e:
+            raise RuntimeError("custom op failed") from e
+    except RuntimeError as outer:
+        assert reference.unwrap_render_error(outer) is inner
+    plain = RuntimeError("other")
+    assert reference.unwrap_render_error(plain) is plain
+
+
+def test_cli_writes_exr_json_png(cache, tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    cmd_reference.add_arguments(parser)
+    out = tmp_path / "out" / "ref.exr"
+    args = parser.parse_args([SCENE, "--spp", "8", "--chunk", "4", "-D", "res_x=16",
+                              "-D", "res_y=12", "-o", str(out), "--no-progress"])
+    assert cmd_reference.run(args) == 0
+    for suffix in (".exr", ".json", ".png"):
+        assert os.path.isfile(str(out.with_suffix(suffix)))
+    text = capsys.readouterr().out
+    assert str(out) in text and "relMSE noise" in text and "rendered" in text
+    assert cmd_reference.run(args) == 0
+    assert "from the cache" in capsys.readouterr().out
