@@ -22,6 +22,7 @@ DEFAULT_VARIANT = "llvm_ad_rgb"
 #: one module per method; each ends with its mi.register_integrator call.
 METHOD_MODULES = (
     "integrators.raymarch",
+    "integrators.epipolar_tree",
 )
 
 

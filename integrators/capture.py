@@ -34,8 +34,8 @@ def first_surface(scene, ray, active=True):
     measured from the original ray origin; ``si.is_valid()`` is False if the
     ray escapes."""
     active = mi.Bool(active)
+    origin, direction = mi.Point3f(ray.o), mi.Vector3f(ray.d)
     si = scene.ray_intersect(ray, active)
-    t = dr.select(si.is_valid(), si.t, dr.inf)
     for _ in range(MAX_NULL_CROSSINGS):
         bsdf = si.bsdf(ray)
         passing = active & si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
@@ -43,10 +43,11 @@ def first_surface(scene, ray, active=True):
             break
         nxt = si.spawn_ray(ray.d)
         si2 = scene.ray_intersect(nxt, passing)
-        t = dr.select(passing, dr.select(si2.is_valid(), t + si2.t, dr.inf), t)
         si = dr.select(passing, si2, si)
         ray = dr.select(passing, nxt, ray)
-    return si, t
+    # distance from the original origin (spawned rays start slightly offset)
+    t = dr.dot(mi.Vector3f(si.p - origin), direction) * dr.rcp(dr.squared_norm(direction))
+    return si, dr.select(si.is_valid(), t, dr.inf)
 
 
 def seed_offset(seed: int, salt: int) -> int:

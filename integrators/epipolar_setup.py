@@ -1,0 +1,600 @@
+"""Rectified epipolar maps shared by the epipolar integrators (directional light).
+
+Baran et al. 2010, "A Hierarchical Volumetric Shadow Algorithm for Single
+Scattering", §3-§8, written so that every camera sample is evaluated at its
+own view ray and its own depth (DESIGN §3, "known trap"): nothing is computed
+per (slice, β-sample) and interpolated back to pixels.
+
+Geometry (:mod:`rectify` conventions)
+-------------------------------------
+``o`` is the pinhole (``params.camera.origin``), ``w_l`` the unit direction
+*toward* the light (the frame's ``axis``).  A slice α is a half-plane
+bounded by the line ``o + u·w_l``; in it a view ray makes the angle β with
+``w_l``, a light ray is the line at distance γ from the axis, and the point
+at distance ``t`` from ``o`` on view ray β lies on light ray ``γ = t·sin β``
+at the axial coordinate ``u = t·cos β = γ·cot β`` (§3, Fig. 3).
+
+Queries (:func:`assign_queries`)
+    Each camera sample whose ray has ``d > 0`` and lies outside the epipole
+    ring (§6) is a *query* of its nearest slice (the slice whose α is
+    closest to the sample's own α).  Queries are sorted by (slice, β): the
+    sweep order of Fig. 6, "from the light away".  Slices without queries
+    are dropped; the remaining ones are the *rows* ``0..n-1`` of the
+    rectified maps, padded to ``r`` = the largest number of queries of a
+    row (``r_count`` per row).  The query keeps its own β and the distance
+    ``γ_end = t_end·sin β`` of its end point from the axis
+    (``t_end = t_near + d``: the camera ray starts on the near plane,
+    ``t_near`` from the pinhole).
+Light rays (:func:`light_ray_grid`)
+    ``d`` light rays per row spanning ``γ ∈ [0, γ_max]``, ``γ_max`` = the
+    largest ``γ_end`` of the row's queries; light ray (leaf) ``g`` covers
+    ``[g, g+1)·Δγ``, ``Δγ = γ_max / d``.  A query's depth is the fractional
+    light-ray index ``D = γ_end / Δγ`` (§5).
+Blocker map (:func:`trace_blocker_angles`, :func:`shadow_map_blocker_angles`)
+    Light ray γ of slice α is first blocked (coming from the light) at the
+    axial coordinate ``u_b``; its points with ``u < u_b`` are in shadow, so
+    view ray β is shadowed on it iff ``β > S := atan2(γ, u_b)`` (``S = π``
+    when nothing blocks it).  ``traced``: the light rays are ray-traced with
+    Mitsuba from outside the scene along ``-w_l`` (exact, no resampling,
+    DESIGN §3).  ``resampled``: ``u_b`` is read from a classic orthographic
+    :class:`~integrators.capture.ShadowMap` (nearest texel), as in the paper.
+    Prefiltering (§7, Fig. 7): ``k`` stratified jittered sub-rays per
+    light-ray interval give up to ``k`` depth modes of weight ``1/k``.
+    :func:`blocker_modes` converts blocker angles to the sweep's view-ray
+    index units: the number of the row's queries with ``β_q ≤ S`` (a mode
+    at index ``m`` acts on queries ``m, m+1, ...``, i.e. exactly those with
+    ``β_q > S``), merging sub-rays that land on the same index.
+Light side (:func:`light_ray_grid`, :func:`light_side_factor`)
+    With the medium box, the light-side path length of a point is
+    ``τ = h(α, γ) − u``, ``h`` the axial coordinate where light ray γ leaves
+    the box toward the light (DESIGN §1).  Hence
+
+        e^{-σt τ} e^{-σt t} dt = L(γ) · K(γ, β) dγ / sin β,
+        L(γ) = e^{-σt h(α, γ)},   K(γ, β) = e^{-σt γ tan(β/2)},
+
+    a per-light-ray factor (the tree's ``L``, "textured light" of §6) times
+    a kernel of (γ, β).  ``L`` is sampled at the light ray's centre and
+    stored relative to the row's smallest ``h`` (``h_ref``: keeps thick
+    media inside float32's range); ``K`` is averaged exactly over the
+    light-ray interval: ``K(γ_g, β)·φ(σt tan(β/2) Δγ)``, ``γ_g`` the
+    interval's start, ``φ(x) = (1 − e^{-x})/x`` (:func:`cell_average`).
+Per-query terms (:func:`directional_query_terms`, :func:`assemble_queries`)
+    ``L_scat = e^{σt (t_near − h_ref)} σs f_p E [Δγ φ/sin β · Σ_γ L K V cover − N]``:
+    Mitsuba's phase function ``f_p`` (``phase_eval``, per query at its own
+    ω) and delivered irradiance ``E`` (``sample_light``), the factor
+    ``Δγ / sin β`` (``ds/dγ``, §4 Eq. 3), ``N`` the closed-form integral
+    over ``[0, t_near]`` between pinhole and near plane (lit as the first
+    light ray of the map says, :func:`first_leaf_visibility`), which the
+    rectified sum includes but the camera ray does not, and
+    ``e^{σt t_near}``, which re-bases the camera-side transmittance to the
+    ray origin.
+Ring (§6; :func:`in_ring`, :func:`march_ring`)
+    Samples whose view ray is within ``ring_deg`` of ``±w_l`` (rectify's
+    :func:`~rectify.ring_mask` definition, evaluated at the sample's own
+    direction) are ray-marched by brute force with exact (ray-traced)
+    visibility, reusing :func:`integrators.raymarch.march`.  View rays
+    within ``MIN_RING_RAD`` of the axis are always marched (``sin β → 0``).
+
+Only directional lights: point and spot lights (§9) are not implemented
+(:func:`require_directional`).  All Dr.Jit on the active variant; NumPy
+only for small host-side tables.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+# submodules, not the package: ``rectify/__init__`` imports ``integrators``
+# (which loads this module) before its own names exist
+from rectify.coords import direction_to_alpha_beta, light_coords_to_world
+from rectify.epipole import EpipolarFrame, directional_frame
+from rectify.slices import Slices, alpha_to_slice, make_slices
+
+from .capture import CameraCapture
+from .light_transport import (BOX_EPS, _slabs, color, phase_eval, point, sample_light,
+                              segment_box, segment_weight)
+from .partial_sum_tree import BlockerModes
+from .raymarch import march
+
+#: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
+MIN_RING_RAD = 1e-5
+#: β of padded query slots: above every real β ∈ [0, π]
+PAD_BETA = 4.0
+
+
+# --------------------------------------------------------------------------
+# Frame and slices (§3, §8)
+# --------------------------------------------------------------------------
+
+def require_directional(params, method: str) -> None:
+    """Refuse (ValueError) what is not implemented instead of rendering it wrong."""
+    kind = params.light.kind
+    if kind != "directional":
+        raise ValueError(
+            f"{method}: the scene's light is a {kind} light, but only directional "
+            f"lights are supported by {method} so far (Baran 2010 §9 point/spot "
+            "lights are not implemented); render this scene with raymarch.")
+
+
+def epipolar_frame_of(params) -> EpipolarFrame:
+    """The epipolar frame of the camera and the directional light (§3)."""
+    return directional_frame(params.camera, params.light.direction)
+
+
+def choose_slices(frame: EpipolarFrame, count: int = 0) -> Slices:
+    """``count = 0``: Baran's sinh distribution (§8, half-pixel bound);
+    otherwise about ``count`` slices with end points equally spaced along the
+    image edges the slices leave through."""
+    if count <= 0:
+        return make_slices(frame, "sinh")
+    border = make_slices(frame, "uniform", spacing=1.0).count   # ≈ exit-edge length [px]
+    return make_slices(frame, "uniform", spacing=max(border, 1) / count)
+
+
+def in_ring(beta, ring_deg: float) -> mi.Bool:
+    """View ray within ``ring_deg`` of ±w_l (rectify.ring's definition)."""
+    limit = max(math.radians(ring_deg), MIN_RING_RAD)
+    return dr.minimum(beta, math.pi - beta) < limit
+
+
+#: most light rays per slice the automatic choice takes
+MAX_AUTO_LIGHT_RAYS = 4096
+
+
+def auto_light_rays(width: int, height: int, sigma_t: float = 0.0,
+                    gamma_max: float = 0.0) -> int:
+    """Default ``d``: the image diagonal in pixels (at least 32), or more if
+    four light rays per mean free path 1/σt over the widest row's
+    ``γ_max`` need more (thick media: the scattering then comes from a few
+    light rays next to the eye), at most ``MAX_AUTO_LIGHT_RAYS``."""
+    d = max(32, math.ceil(math.hypot(width, height)), math.ceil(4 * sigma_t * gamma_max))
+    return int(min(d, MAX_AUTO_LIGHT_RAYS))
+
+
+# --------------------------------------------------------------------------
+# Queries: camera samples sorted into the slices' sweeps (§4)
+# --------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class EpipolarQueries:
+    """Camera samples as queries of their nearest slice's sweep (module doc).
+
+    Row arrays have ``n`` entries, query arrays ``Q`` (sorted by row, then β);
+    ``ring_sample`` lists the camera samples to ray-march instead."""
+    frame: EpipolarFrame
+    slices: Slices
+    n: int                     # rows = slices with queries
+    r: int                     # padded queries per row
+    slice_index: mi.UInt32     # (n,) index into ``slices``
+    alpha: mi.Float            # (n,) α of each row's slice
+    r_count: mi.UInt32         # (n,) queries per row
+    sample: mi.UInt32          # (Q,) camera sample of each query
+    row: mi.UInt32             # (Q,)
+    col: mi.UInt32             # (Q,) position in the row's sweep
+    beta: mi.Float             # (Q,) the query's own β
+    gamma_end: mi.Float        # (Q,) t_end·sin β
+    t_near: mi.Float           # (Q,) pinhole -> camera ray origin
+    ring_sample: mi.UInt32     # (R,) camera samples inside the ring
+    n_samples: int
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.sample) if self.n else 0
+
+    @property
+    def slot(self) -> mi.UInt32:
+        """Flat index ``row·r + col`` of each query in (n, r) maps."""
+        return self.row * self.r + self.col
+
+    def padded(self, values, fill: float) -> mi.Float:
+        """(n·r,) map with the queries' ``values`` in their slots, ``fill`` elsewhere."""
+        out = dr.full(mi.Float, fill, self.n * self.r)
+        dr.scatter(out, values, self.slot)
+        return out
+
+
+def _nearest_slice(slices: Slices, alpha) -> mi.UInt32:
+    k0, k1, f = alpha_to_slice(slices, alpha)
+    return dr.select(f < 0.5, k0, k1)
+
+
+def _sweep_order(k: mi.UInt32, beta: mi.Float) -> mi.UInt32:
+    """Permutation sorting by (slice k, β): two stable radix sorts (Fig. 6's
+    sweep order within each slice)."""
+    order = dr.argsort(beta)
+    return dr.gather(mi.UInt32, order, dr.argsort(dr.gather(mi.UInt32, k, order)))
+
+
+def _rows(slices: Slices, k: mi.UInt32):
+    """(slice_index, r_count, row, col) of queries already sorted by slice
+    ``k``: the non-empty slices become rows 0..n-1, col = rank in the row."""
+    counts = dr.zeros(mi.UInt32, slices.count)
+    dr.scatter_reduce(dr.ReduceOp.Add, counts, mi.UInt32(1), k)
+    used = counts > 0
+    row_of_slice = dr.prefix_sum(dr.select(used, mi.UInt32(1), mi.UInt32(0)))  # exclusive
+    slice_index = dr.compress(used)
+    r_count = dr.gather(mi.UInt32, counts, slice_index)
+    begin = dr.prefix_sum(r_count)
+    row = dr.gather(mi.UInt32, row_of_slice, k)
+    col = dr.arange(mi.UInt32, dr.width(k)) - dr.gather(mi.UInt32, begin, row)
+    return slice_index, r_count, row, col
+
+
+def _no_queries(frame, slices, ring_sample, n_samples) -> EpipolarQueries:
+    u, f = dr.zeros(mi.UInt32, 0), dr.zeros(mi.Float, 0)
+    return EpipolarQueries(frame, slices, 0, 0, u, f, u, u, u, u, f, f, f, ring_sample,
+                           n_samples)
+
+
+def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapture,
+                   ring_deg: float) -> EpipolarQueries:
+    """Sort the camera samples of ``cap`` into the sweeps of their nearest
+    slices (module doc); ring samples are listed apart, samples with
+    ``d = 0`` are dropped (they scatter nothing)."""
+    n_samples = dr.width(cap.d)
+    alpha, beta = direction_to_alpha_beta(frame, cap.omega)
+    ring = in_ring(beta, ring_deg) & (cap.d > 0)
+    ring_sample = dr.compress(ring)
+    idx = dr.compress((cap.d > 0) & ~ring)
+    if dr.width(idx) == 0:
+        return _no_queries(frame, slices, ring_sample, n_samples)
+    k = dr.gather(mi.UInt32, _nearest_slice(slices, alpha), idx)
+    b = dr.gather(mi.Float, beta, idx)
+    order = _sweep_order(k, b)
+    sample = dr.gather(mi.UInt32, idx, order)
+    k, b = dr.gather(mi.UInt32, k, order), dr.gather(mi.Float, b, order)
+    slice_index, r_count, row, col = _rows(slices, k)
+    pinhole = mi.Point3f(point(params.camera.origin))
+    t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
+    gamma_end = (t_near + dr.gather(mi.Float, cap.d, sample)) * dr.sin(b)
+    alpha_rows = dr.gather(mi.Float, mi.Float(np.asarray(slices.alpha, np.float32)), slice_index)
+    q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(r_count)[0]),
+                        slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
+                        t_near, ring_sample, n_samples)
+    dr.eval(q.slice_index, q.alpha, q.r_count, q.sample, q.row, q.col, q.beta,
+            q.gamma_end, q.t_near, q.ring_sample)
+    return q
+
+
+# --------------------------------------------------------------------------
+# Light rays (§3, §5)
+# --------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class LightRays:
+    """``d`` light rays per row over ``[0, γ_max]`` (module doc)."""
+    d: int
+    gamma_max: mi.Float     # (n,)
+    delta_gamma: mi.Float   # (n,)
+    h: mi.Float             # (n·d,) axial exit coordinate h(α, γ) at each centre
+    h_ref: mi.Float         # (n,) smallest h of the row's rays that meet the box
+
+    def lanes(self, per_ray: int = 1):
+        """(row s, light ray g, sub-ray m) of ``n·d·per_ray`` lanes."""
+        n = dr.width(self.delta_gamma)
+        j = dr.arange(mi.UInt32, n * self.d * per_ray)
+        return j // (self.d * per_ray), (j // per_ray) % self.d, j % per_ray
+
+    def positions(self, offset: float = 0.5):
+        """(row, γ) of every light ray at ``offset`` ∈ [0, 1] across its
+        interval (0.5: its centre, 0: its start), (n·d,) lanes."""
+        s, g, _ = self.lanes()
+        return s, (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
+
+
+def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
+    """The rows' ``d`` light rays (0: :func:`auto_light_rays`) and where each
+    leaves the medium box toward the light (h; +inf if it misses the box)."""
+    gamma_max = dr.zeros(mi.Float, queries.n)
+    dr.scatter_reduce(dr.ReduceOp.Max, gamma_max, queries.gamma_end, queries.row)
+    gamma_max = dr.maximum(gamma_max, 1e-6 * params.scene_extent)
+    if not d:
+        cam = params.camera
+        d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)),
+                            float(dr.max(gamma_max)[0]))
+    rays = LightRays(int(d), gamma_max, gamma_max / d, None, None)
+    frame = queries.frame
+    s, gamma = rays.positions(0.5)
+    base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
+    h, hits = _axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
+    rays.h = dr.select(hits, h, dr.inf)
+    rays.h_ref = dr.full(mi.Float, dr.inf, queries.n)
+    dr.scatter_reduce(dr.ReduceOp.Min, rays.h_ref, rays.h, s)
+    rays.h_ref = dr.select(dr.isfinite(rays.h_ref), rays.h_ref, 0.0)
+    dr.eval(rays.gamma_max, rays.delta_gamma, rays.h, rays.h_ref)
+    return rays
+
+
+def rectified_depth(queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
+    """D (n, r): each query's depth as a fractional light-ray index (§5)."""
+    D = queries.gamma_end / dr.gather(mi.Float, rays.delta_gamma, queries.row)
+    return mi.TensorXf(queries.padded(D, 0.0), shape=(queries.n, queries.r))
+
+
+def _sub_ray_gamma(rays: LightRays, k: int, seed: int):
+    """(row, γ) of ``k`` stratified jittered sub-rays per light ray (§7);
+    ``k = 1``: the light ray's centre."""
+    s, g, m = rays.lanes(k)
+    if k == 1:
+        xi = mi.Float(0.5)
+    else:
+        n = dr.width(s)
+        rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + 0x2545F4914F6CDD1D * (seed + 1))
+        xi = (mi.Float(m) + rng.next_float32()) / k
+    return s, (mi.Float(g) + xi) * dr.gather(mi.Float, rays.delta_gamma, s)
+
+
+def _row_alpha(queries, s):
+    return dr.gather(mi.Float, queries.alpha, s)
+
+
+# --------------------------------------------------------------------------
+# Blocker maps S[α, γ] (§3, §7)
+# --------------------------------------------------------------------------
+
+def _light_top(params, frame: EpipolarFrame) -> float:
+    """Axial coordinate u beyond every scene object (rays start there)."""
+    bb = params.scene.bbox()
+    corners = np.array([[x, y, z] for x in (bb.min[0], bb.max[0])
+                        for y in (bb.min[1], bb.max[1]) for z in (bb.min[2], bb.max[2])])
+    u = (corners - params.camera.origin) @ frame.axis
+    return float(np.max(u)) + 1e-2 * params.scene_extent
+
+
+def first_blocker(params, origin, d):
+    """(hit, point): first surface on the ray ``origin + s·d`` (s ≥ 0), the
+    medium box excepted -- the occluders :func:`~integrators.light_transport.visible_exact`
+    sees.  Like it, the ray is traced in pieces split at the box crossings
+    (each stopped ``BOX_EPS`` short of the box), whose origins stay exactly
+    on the line: re-spawning at the box (:func:`~integrators.capture.first_surface`)
+    offsets the ray along the box normal, which moves grazing hits by
+    ~1e-4·extent/tan(angle)."""
+    inf = dr.full(mi.Float, dr.inf, dr.width(origin.x))
+    _, t_in, t_out = segment_box(params, origin, d, inf)
+    eps = BOX_EPS * params.scene_extent
+    hit = mi.Bool(False)
+    p = mi.Point3f(origin)
+    for a, b in ((mi.Float(0.0), t_in - eps), (t_in + eps, t_out - eps),
+                 (t_out + eps, dr.largest(mi.Float))):
+        active = ~hit & (b > a)
+        ray = mi.Ray3f(origin + d * a, d)
+        ray.maxt = dr.maximum(b - a, 0.0)
+        si = params.scene.ray_intersect(ray, active)
+        found = active & si.is_valid()
+        p = dr.select(found, si.p, p)
+        hit |= found
+    return hit, p
+
+
+def trace_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, k: int = 1,
+                         seed: int = 0) -> mi.Float:
+    """S = atan2(γ, u_b) of ``k`` sub-rays per light ray, (n·d·k,) lanes in
+    (row, light ray, sub-ray) order; π where nothing blocks the sub-ray.
+    Each sub-ray is traced with Mitsuba from outside the scene along -w_l
+    (:func:`first_blocker`)."""
+    frame = queries.frame
+    s, gamma = _sub_ray_gamma(rays, k, seed)
+    U = _light_top(params, frame)
+    origin = light_coords_to_world(frame, _row_alpha(queries, s), gamma, U)
+    w = mi.Vector3f(*map(float, frame.axis))
+    hit, p = first_blocker(params, origin, -w)
+    u_b = dr.dot(mi.Vector3f(p - mi.Point3f(point(params.camera.origin))), w)
+    beta_b = dr.select(hit, dr.atan2(gamma, u_b), math.pi)
+    dr.eval(beta_b)
+    return beta_b
+
+
+def shadow_map_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, shadow_map,
+                              k: int = 1, seed: int = 0) -> mi.Float:
+    """Like :func:`trace_blocker_angles`, but ``u_b`` read from an
+    orthographic :class:`~integrators.capture.ShadowMap` (nearest texel, the
+    paper's "rectify the shadow map", §3): a light ray is parallel to the
+    map's rays, so it meets one texel."""
+    if shadow_map.kind != "ortho":
+        raise ValueError("a directional light needs an orthographic shadow map")
+    frame = queries.frame
+    s, gamma = _sub_ray_gamma(rays, k, seed)
+    base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
+    _, u, v, _ = shadow_map._coords(base)
+    res = shadow_map.res
+    iu = mi.UInt32(dr.clip(mi.Int32(dr.round(u)), 0, res - 1))
+    iv = mi.UInt32(dr.clip(mi.Int32(dr.round(v)), 0, res - 1))
+    z_b = dr.gather(mi.Float, shadow_map.depth, iv * res + iu)
+    # depth of a point x along the map's rays: z = s0 − x·w; x shadowed iff
+    # z > z_b + bias  ⟺  u < s0 − o·w − z_b − bias (o·w: the base point's)
+    w = np.asarray(shadow_map.frames[0][2], np.float64)
+    top = shadow_map.s0 - float(params.camera.origin @ w) - shadow_map.bias
+    u_b = top - z_b
+    beta_b = dr.select(dr.isfinite(z_b), dr.atan2(gamma, u_b), math.pi)
+    dr.eval(beta_b)
+    return beta_b
+
+
+def searchsorted_rows(queries: EpipolarQueries, s, x) -> mi.UInt32:
+    """Number of queries of row ``s`` with β ≤ ``x`` (per lane)."""
+    beta_pad = queries.padded(queries.beta, PAD_BETA)
+    r = queries.r
+    base = s * r
+
+    def pred(i):
+        inside = i < r
+        return inside & (dr.gather(mi.Float, beta_pad, base + dr.minimum(i, r - 1)) <= x)
+
+    return mi.UInt32(dr.binary_search(0, r, pred))
+
+
+def merge_modes(index: mi.UInt32, k: int):
+    """(β index, weight) of the k sub-rays of each light ray, equal indices
+    merged into one mode of weight count/k (§7, Fig. 7); merged-away slots
+    get weight 0 (no update)."""
+    lanes = dr.width(index) // k
+    j = dr.arange(mi.UInt32, lanes)
+    v = [dr.gather(mi.UInt32, index, j * k + m) for m in range(k)]
+    beta, weight = [], []
+    for m in range(k):
+        first = mi.Bool(True)
+        for i in range(m):
+            first &= v[i] != v[m]
+        same = mi.Float(0.0)
+        for i in range(k):
+            same += dr.select(v[i] == v[m], 1.0, 0.0)
+        beta.append(mi.Float(v[m]))
+        weight.append(dr.select(first, same / k, 0.0))
+    out_b, out_w = dr.zeros(mi.Float, lanes * k), dr.zeros(mi.Float, lanes * k)
+    for m in range(k):
+        dr.scatter(out_b, beta[m], j * k + m)
+        dr.scatter(out_w, weight[m], j * k + m)
+    return out_b, out_w
+
+
+def blocker_modes(queries: EpipolarQueries, rays: LightRays, beta_b: mi.Float,
+                  k: int) -> BlockerModes:
+    """Blocker angles of k sub-rays per light ray -> depth modes in the
+    sweep's index units (module doc), (n, d, k) tensors."""
+    s, _, _ = rays.lanes(k)
+    index = searchsorted_rows(queries, s, beta_b)
+    b, w = merge_modes(index, k)
+    shape = (queries.n, rays.d, k)
+    modes = BlockerModes(mi.TensorXf(b, shape=shape), mi.TensorXf(w, shape=shape))
+    dr.eval(modes.beta, modes.weight)
+    return modes
+
+
+# --------------------------------------------------------------------------
+# Light side (DESIGN §1, Baran §6 "textured light")
+# --------------------------------------------------------------------------
+
+def gray(sigma_t) -> bool:
+    s = np.asarray(sigma_t, np.float64)
+    return bool(np.all(s == s[0]))
+
+
+def _axial_exit(params, x, w):
+    """(h, hits): axial coordinate where the line x + u·w leaves the medium
+    box toward the light, and whether the line meets the box at all."""
+    t_near, t_far = _slabs(x, w, point(params.medium.bounds_min), point(params.medium.bounds_max))
+    return t_far, t_far >= t_near
+
+
+def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
+    """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} ∈ [0, 1] at every light ray's
+    centre: (n, d) if σt is grey, else (n, d, 3).  Relative to the row's
+    h_ref so that thick media stay inside float32's range; the factor
+    e^{-σt h_ref} is applied per query (:func:`directional_query_terms`)."""
+    s, _, _ = rays.lanes()
+    dh = rays.h - dr.gather(mi.Float, rays.h_ref, s)
+    sigma_t = params.medium.sigma_t
+    channels = [0] if gray(sigma_t) else [0, 1, 2]
+    out = dr.zeros(mi.Float, dr.width(dh) * len(channels))
+    lane = dr.arange(mi.UInt32, dr.width(dh))
+    for c in channels:
+        e = -float(sigma_t[c]) * dh
+        dr.scatter(out, dr.select(dr.isfinite(dh), dr.exp(e), 0.0), lane * len(channels) + c)
+    shape = (queries.n, rays.d) if len(channels) == 1 else (queries.n, rays.d, 3)
+    return mi.TensorXf(out, shape=shape)
+
+
+# --------------------------------------------------------------------------
+# Per-query terms and the way back to camera samples
+# --------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class QueryTerms:
+    """Per-query factors of the directional-light formulation (module doc)."""
+    radiance: mi.Color3f    # σs · f_p · E · e^{-σt h_ref} · e^{σt t_near}
+    view: mi.Color3f        # Δγ / sin β · φ(σt tan(β/2) Δγ)
+    near: mi.Color3f        # V · ∫ over [0, t_near] of e^{-σt (h(0) − h_ref)} e^{-σt t(1−cos β)} dt
+
+
+def first_leaf_visibility(queries: EpipolarQueries, modes: BlockerModes) -> mi.Float:
+    """V(γ ∈ leaf 0, β_q) per query from the blocker modes: the visibility of
+    the rectified map next to the eye, which the sweep applies to the part
+    of the view ray in front of the near plane."""
+    k = modes.beta.shape[2]
+    d = modes.beta.shape[1]
+    beta, weight = mi.Float(modes.beta.array), mi.Float(modes.weight.array)
+    V = mi.Float(1.0)
+    for m in range(k):
+        j = queries.row * (d * k) + m
+        acts = mi.Float(dr.gather(mi.Float, beta, j)) <= mi.Float(queries.col)
+        V -= dr.select(acts, dr.gather(mi.Float, weight, j), 0.0)
+    return V
+
+
+def cell_average(x):
+    """φ(x) = (1 − e^{-x}) / x (φ(0) = 1), stable for every x ≥ 0: the mean
+    of e^{-c(γ − γ_g)} over a light-ray interval [γ_g, γ_g + Δγ], x = c·Δγ."""
+    small = x < 1e-2
+    xs = dr.select(small, 1.0, x)
+    series = 1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0)))
+    return dr.select(small, series, (1.0 - dr.exp(-xs)) / xs)
+
+
+def directional_query_terms(params, cap: CameraCapture, queries: EpipolarQueries,
+                            rays: LightRays, V_near=1.0) -> QueryTerms:
+    """Per-query factors (module doc); ``V_near``: visibility of the segment
+    between pinhole and near plane (:func:`first_leaf_visibility`)."""
+    sigma_t = color(params.medium.sigma_t)
+    omega = dr.gather(mi.Vector3f, cap.omega, queries.sample)
+    o = dr.gather(mi.Point3f, cap.o, queries.sample)
+    wo, _, E = sample_light(params, o)
+    f_p = phase_eval(params, omega, wo)
+    h_ref = dr.gather(mi.Float, rays.h_ref, queries.row)
+    # e^{-σt h_ref}: L's reference (light_side_factor); e^{σt t_near}: the
+    # camera-side transmittance counted from the ray origin, not the pinhole
+    radiance = color(params.medium.sigma_s) * f_p * E * dr.exp(sigma_t * (queries.t_near - h_ref))
+    dg = dr.gather(mi.Float, rays.delta_gamma, queries.row)
+    view = dg / dr.sin(queries.beta) * cell_average(sigma_t * dr.tan(0.5 * queries.beta) * dg)
+    h0, _ = _axial_exit(params, mi.Point3f(point(params.camera.origin)),
+                        mi.Vector3f(*map(float, queries.frame.axis)))
+    one_minus_cos = 1.0 - dr.dot(omega, wo)
+    near = V_near * dr.exp(-sigma_t * (h0 - h_ref)) * segment_weight(sigma_t * one_minus_cos,
+                                                                       0.0, queries.t_near)
+    return QueryTerms(radiance, view, near)
+
+
+def assemble_queries(terms: QueryTerms, integral: mi.Color3f) -> mi.Color3f:
+    """L_scat per query from the rectified integral Σ_γ L K V cover."""
+    value = terms.radiance * (terms.view * integral - terms.near)
+    return dr.maximum(value, 0.0)
+
+
+def gather_queries(queries: EpipolarQueries, result: mi.TensorXf) -> mi.Color3f:
+    """Each query's entry of an (n, r) or (n, r, C) result as a Color3f."""
+    flat = mi.Float(result.array)
+    C = result.shape[2] if len(result.shape) == 3 else 1
+    slot = queries.slot
+    if C == 1:
+        v = dr.gather(mi.Float, flat, slot)
+        return mi.Color3f(v, v, v)
+    return mi.Color3f(*(dr.gather(mi.Float, flat, slot * C + c) for c in range(C)))
+
+
+def subset_capture(cap: CameraCapture, idx: mi.UInt32) -> CameraCapture:
+    """The camera samples ``idx`` of ``cap`` as a capture of their own."""
+    def g(t, v):
+        return dr.gather(t, v, idx)
+    return replace(cap, pixel=g(mi.UInt32, cap.pixel), o=g(mi.Point3f, cap.o),
+                   omega=g(mi.Vector3f, cap.omega), d=g(mi.Float, cap.d),
+                   T_cam=g(mi.Color3f, cap.T_cam), L_surface=g(mi.Color3f, cap.L_surface),
+                   hit=g(mi.Bool, cap.hit))
+
+
+def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int) -> mi.Color3f:
+    """Brute-force L_scat of the ring samples (§6): raymarch with exact,
+    ray-traced visibility."""
+    return march(params, subset_capture(cap, queries.ring_sample), steps, shadow_map=None)
+
+
+def to_samples(queries: EpipolarQueries, parts) -> mi.Color3f:
+    """Per camera sample: the ``(sample indices, values)`` pairs scattered
+    into zeros (samples in no part scatter nothing)."""
+    out = dr.zeros(mi.Color3f, queries.n_samples)
+    for idx, values in parts:
+        if dr.width(idx):
+            dr.scatter(out, values, idx)
+    return out
