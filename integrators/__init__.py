@@ -23,6 +23,7 @@ DEFAULT_VARIANT = "llvm_ad_rgb"
 METHOD_MODULES = (
     "integrators.raymarch",
     "integrators.epipolar_tree",
+    "integrators.fourier_filter",
 )
 
 
