@@ -229,3 +229,15 @@ def noise_relmse(half_a, half_b, block: int = 1, eps: float = DEFAULT_EPS) -> fl
     variance_of_mean = (a - b) ** 2 / 4.0
     mean = (a + b) / 2.0
     return float(np.mean(variance_of_mean / (mean**2 + eps)))
+
+
+def noise_relmse_from_variance(mean, variance, block: int = 1, eps: float = DEFAULT_EPS) -> float:
+    """relMSE noise of a Monte Carlo image ``mean`` from its per-pixel
+    variance-of-the-mean estimate ``variance`` (e.g. from K independent
+    chunks: Σ(x_c - x̄)² / (K(K-1)), K-1 degrees of freedom instead of the
+    one of :func:`noise_relmse`).  Pixels are independent, so a k×k block's
+    variance is the block mean of the pixel variances divided by k²."""
+    m, v = _pair(mean, variance)
+    m = block_average(m, block)
+    v = block_average(v, block) / float(block * block)
+    return float(np.mean(v / (m**2 + eps)))

@@ -86,23 +86,31 @@ def reference_path(scene_path, defines=None, spp=None, kind="volpath", steps=Non
     return os.path.join(cache_dir or default_cache_dir(), f"{stem}-{kind}-{key}-spp{spp}.exr")
 
 
+#: references shipped with the repository (small; see references/README.md)
+SHIPPED_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                           "references")
+
+
 def find_cached_reference(scene_path, defines=None, kind="volpath", steps=None,
                           cache_dir=None) -> str | None:
     """The cached reference EXR of this scene file + defines with the most
-    samples per pixel (any spp), or None if there is none."""
-    folder = cache_dir or default_cache_dir()
-    if not os.path.isdir(folder):
-        return None
+    samples per pixel (any spp), looked up in ``cache_dir`` (default: the
+    user cache) and in the repository's shipped ``references/``; None if
+    there is none."""
     stem = os.path.splitext(os.path.basename(scene_path))[0]
     prefix = f"{stem}-{kind}-{reference_key(scene_path, defines, kind, steps)}-spp"
     best, best_spp = None, -1
-    for name in os.listdir(folder):
-        if not (name.startswith(prefix) and name.endswith(".exr")):
+    for folder in (cache_dir or default_cache_dir(), SHIPPED_DIR):
+        if not os.path.isdir(folder):
             continue
-        spp_text = name[len(prefix):-len(".exr")]
-        path = os.path.join(folder, name)
-        if spp_text.isdigit() and int(spp_text) > best_spp and os.path.isfile(sidecar_path(path)):
-            best, best_spp = path, int(spp_text)
+        for name in os.listdir(folder):
+            if not (name.startswith(prefix) and name.endswith(".exr")):
+                continue
+            spp_text = name[len(prefix):-len(".exr")]
+            path = os.path.join(folder, name)
+            if spp_text.isdigit() and int(spp_text) > best_spp and \
+                    os.path.isfile(sidecar_path(path)):
+                best, best_spp = path, int(spp_text)
     return best
 
 
@@ -245,6 +253,24 @@ def noise_levels(half_a, half_b, eps: float = metrics.DEFAULT_EPS,
     return out
 
 
+def chunk_noise_levels(mean, variance, eps: float = metrics.DEFAULT_EPS,
+                       blocks=NOISE_BLOCKS) -> dict:
+    """relMSE noise from the per-chunk variance layer at several block sizes."""
+    out = {"eps": float(eps)}
+    if not np.all(np.isfinite(variance)):
+        return out
+    h, w = np.shape(mean)[:2]
+    for k in blocks:
+        if k <= min(h, w):
+            out[f"block_{k}"] = metrics.noise_relmse_from_variance(mean, variance, k, eps)
+    return out
+
+
+def load_variance(path) -> np.ndarray | None:
+    """The per-pixel variance-of-the-mean layer of a reference EXR, if stored."""
+    return read_exr(path).get("variance")
+
+
 # --------------------------------------------------------------------------
 # The reference itself
 # --------------------------------------------------------------------------
@@ -256,6 +282,7 @@ def _accumulate(scene, integrator, sizes, progress, desc):
     halves = [None, None]
     weights = [0, 0]
     seconds = []
+    sum_sq = 0.0
     for seed, n in enumerate(tqdm(sizes, desc=desc, unit="chunk", disable=not progress)):
         t0 = time.perf_counter()
         img = render_rgb(scene, integrator, spp=n, seed=seed).astype(np.float64)
@@ -263,7 +290,15 @@ def _accumulate(scene, integrator, sizes, progress, desc):
         side = seed % 2
         halves[side] = img * n if halves[side] is None else halves[side] + img * n
         weights[side] += n
-    return halves[0] / weights[0], halves[1] / weights[1], seconds
+        sum_sq = sum_sq + img * img
+    half_a, half_b = halves[0] / weights[0], halves[1] / weights[1]
+    # per-pixel variance of the mean from the K chunk means (K-1 dof);
+    # chunks hold (nearly) equal sample counts
+    K = len(sizes)
+    mean = 0.5 * (half_a + half_b)
+    variance = np.maximum(sum_sq / K - mean * mean, 0.0) / max(K - 1, 1) if K > 1 else \
+        np.full_like(mean, np.nan)
+    return half_a, half_b, variance, seconds
 
 
 def _write_atomic(path, layers, info) -> None:
@@ -339,7 +374,7 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
     t0 = time.perf_counter()
     scene = load_scene(scene_path, defines)
     integrator, source, description = reference_integrator(scene, kind, steps)
-    half_a, half_b, seconds = _accumulate(scene, integrator, sizes, progress,
+    half_a, half_b, variance, seconds = _accumulate(scene, integrator, sizes, progress,
                                           f"{kind} reference {os.path.basename(scene_path)}")
     wall = time.perf_counter() - t0
     full = 0.5 * (half_a + half_b)
@@ -362,9 +397,13 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
         "defines": defines,
         "scene_key": reference_key(scene_path, defines, kind, steps),
         "relmse_noise": noise_levels(half_a, half_b, eps),
+        "relmse_noise_chunks": chunk_noise_levels(full, variance, eps),
+        "variance": "layer 'variance': per-pixel variance of the mean from the "
+                    f"{len(sizes)} chunk means ({len(sizes) - 1} degrees of freedom)",
         "path": path,
         **environment(),
     }
-    _write_atomic(path, {"full": full, "half_a": half_a, "half_b": half_b}, info)
+    _write_atomic(path, {"full": full, "half_a": half_a, "half_b": half_b,
+                         "variance": variance}, info)
     info["cached"] = False
     return full.astype(np.float32), info

@@ -56,7 +56,9 @@ def seed_offset(seed: int, salt: int) -> int:
 
 
 def _camera_positions(width, height, spp, jitter, seed):
-    """Film positions (in [0,1]^2) and pixel indices of spp samples per pixel."""
+    """Film positions (in [0,1]^2) and pixel indices of spp samples per pixel:
+    stratified on a k x k grid when spp = k², else independent; jittered
+    inside each cell or at its centre."""
     n = width * height * spp
     idx = dr.arange(mi.UInt32, n)
     pixel = idx // spp
@@ -67,6 +69,12 @@ def _camera_positions(width, height, spp, jitter, seed):
         ox, oy = rng.next_float32(), rng.next_float32()
     else:
         ox = oy = mi.Float(0.5)
+    k = int(round(spp ** 0.5))
+    if k > 1 and k * k == spp:
+        # stratified: one sample per cell of a k x k grid inside the pixel
+        cell = idx % spp
+        ox = (mi.Float(cell % k) + ox) / k
+        oy = (mi.Float(cell // k) + oy) / k
     return mi.Point2f((px + ox) / width, (py + oy) / height), pixel
 
 

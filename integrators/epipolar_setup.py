@@ -1,4 +1,4 @@
-"""Rectified epipolar maps shared by the epipolar integrators (directional light).
+"""Rectified epipolar maps shared by the epipolar integrators.
 
 Baran et al. 2010, "A Hierarchical Volumetric Shadow Algorithm for Single
 Scattering", §3-§8, written so that every camera sample is evaluated at its
@@ -75,9 +75,15 @@ Ring (§6; :func:`in_ring`, :func:`march_ring`)
     visibility, reusing :func:`integrators.raymarch.march`.  View rays
     within ``MIN_RING_RAD`` of the axis are always marched (``sin β → 0``).
 
-Only directional lights: point and spot lights (§9) are not implemented
-(:func:`require_directional`).  All Dr.Jit on the active variant; NumPy
-only for small host-side tables.
+Point and spot lights (§9): :func:`epipolar_frame_of`,
+:func:`assign_queries`, the light-ray offset ``γ_lo`` of :class:`LightRays`,
+:func:`rectified_depth` and the sub-ray and blocker-mode functions serve
+them too, with γ the angle at the light (``rectify`` conventions); the
+rest of the local-light maths (blockers traced from the light, intensity,
+kernel, per-query terms) is in :mod:`integrators.epipolar_local_light`.
+:func:`require_directional` remains for methods that support directional
+lights only.  All Dr.Jit on the active variant; NumPy only for small
+host-side tables.
 """
 from __future__ import annotations
 
@@ -90,8 +96,8 @@ import numpy as np
 
 # submodules, not the package: ``rectify/__init__`` imports ``integrators``
 # (which loads this module) before its own names exist
-from rectify.coords import direction_to_alpha_beta, light_coords_to_world
-from rectify.epipole import EpipolarFrame, directional_frame
+from rectify.coords import direction_to_alpha_beta, light_coords_to_world, view_to_light
+from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, alpha_to_slice, make_slices
 
 from .capture import CameraCapture
@@ -121,8 +127,12 @@ def require_directional(params, method: str) -> None:
 
 
 def epipolar_frame_of(params) -> EpipolarFrame:
-    """The epipolar frame of the camera and the directional light (§3)."""
-    return directional_frame(params.camera, params.light.direction)
+    """The epipolar frame of the camera and the light: directional (§3), or
+    point/spot at ``params.light.position`` (§9, axis = eye -> light)."""
+    light = params.light
+    if light.kind == "directional":
+        return directional_frame(params.camera, light.direction)
+    return point_frame(params.camera, light.position, kind=light.kind)
 
 
 def choose_slices(frame: EpipolarFrame, count: int = 0) -> Slices:
@@ -176,7 +186,7 @@ class EpipolarQueries:
     row: mi.UInt32             # (Q,)
     col: mi.UInt32             # (Q,) position in the row's sweep
     beta: mi.Float             # (Q,) the query's own β
-    gamma_end: mi.Float        # (Q,) t_end·sin β
+    gamma_end: mi.Float        # (Q,) γ of the end point: t_end·sin β (point/spot: angle)
     t_near: mi.Float           # (Q,) pinhole -> camera ray origin
     ring_sample: mi.UInt32     # (R,) camera samples inside the ring
     n_samples: int
@@ -230,11 +240,22 @@ def _no_queries(frame, slices, ring_sample, n_samples) -> EpipolarQueries:
                            n_samples)
 
 
+def end_gamma(frame: EpipolarFrame, beta, t_end) -> mi.Float:
+    """γ of the point at distance ``t_end`` on view ray β: ``t_end·sin β``
+    (directional, the distance from the axis, §3), or the angle at the light
+    between the light ray through it and the direction light -> eye
+    (point/spot, §9)."""
+    if frame.is_directional:
+        return t_end * dr.sin(beta)
+    return view_to_light(frame, 0.0, beta, t_end)[0]
+
+
 def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapture,
                    ring_deg: float) -> EpipolarQueries:
     """Sort the camera samples of ``cap`` into the sweeps of their nearest
     slices (module doc); ring samples are listed apart, samples with
-    ``d = 0`` are dropped (they scatter nothing)."""
+    ``d = 0`` are dropped (they scatter nothing).  ``γ_end``:
+    :func:`end_gamma` of the light kind of ``frame``."""
     n_samples = dr.width(cap.d)
     alpha, beta = direction_to_alpha_beta(frame, cap.omega)
     ring = in_ring(beta, ring_deg) & (cap.d > 0)
@@ -250,7 +271,7 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     slice_index, r_count, row, col = _rows(slices, k)
     pinhole = mi.Point3f(point(params.camera.origin))
     t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
-    gamma_end = (t_near + dr.gather(mi.Float, cap.d, sample)) * dr.sin(b)
+    gamma_end = end_gamma(frame, b, t_near + dr.gather(mi.Float, cap.d, sample))
     alpha_rows = dr.gather(mi.Float, mi.Float(np.asarray(slices.alpha, np.float32)), slice_index)
     q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(r_count)[0]),
                         slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
@@ -266,12 +287,21 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
 
 @dataclass(eq=False)
 class LightRays:
-    """``d`` light rays per row over ``[0, γ_max]`` (module doc)."""
+    """``d`` light rays per row over ``[γ_lo, γ_max]`` (module doc; ``γ_lo``
+    = 0 unless given: a spot light's rows start at the cone, leaf ``g``
+    covering ``γ_lo + [g, g+1)·Δγ``)."""
     d: int
     gamma_max: mi.Float     # (n,)
     delta_gamma: mi.Float   # (n,)
     h: mi.Float             # (n·d,) axial exit coordinate h(α, γ) at each centre
     h_ref: mi.Float         # (n,) smallest h of the row's rays that meet the box
+    gamma_lo: mi.Float | None = None   # (n,) start of the rows' light rays; None: 0
+
+    def start(self, s) -> mi.Float:
+        """γ_lo of rows ``s`` (0 when the rows start at the axis)."""
+        if self.gamma_lo is None:
+            return dr.zeros(mi.Float, dr.width(s))
+        return dr.gather(mi.Float, self.gamma_lo, s)
 
     def lanes(self, per_ray: int = 1):
         """(row s, light ray g, sub-ray m) of ``n·d·per_ray`` lanes."""
@@ -283,7 +313,7 @@ class LightRays:
         """(row, γ) of every light ray at ``offset`` ∈ [0, 1] across its
         interval (0.5: its centre, 0: its start), (n·d,) lanes."""
         s, g, _ = self.lanes()
-        return s, (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
+        return s, self.start(s) + (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
 
 
 def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
@@ -310,14 +340,17 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
 
 
 def rectified_depth(queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
-    """D (n, r): each query's depth as a fractional light-ray index (§5)."""
-    D = queries.gamma_end / dr.gather(mi.Float, rays.delta_gamma, queries.row)
+    """D (n, r): each query's depth as a fractional light-ray index (§5),
+    ``(γ_end − γ_lo) / Δγ`` (clipped to [0, d] by the sweep)."""
+    D = ((queries.gamma_end - rays.start(queries.row))
+         / dr.gather(mi.Float, rays.delta_gamma, queries.row))
     return mi.TensorXf(queries.padded(D, 0.0), shape=(queries.n, queries.r))
 
 
-def _sub_ray_gamma(rays: LightRays, k: int, seed: int):
-    """(row, γ) of ``k`` stratified jittered sub-rays per light ray (§7);
-    ``k = 1``: the light ray's centre."""
+def sub_ray_gamma(rays: LightRays, k: int, seed: int):
+    """(row, γ) of ``k`` stratified jittered sub-rays per light ray (§7),
+    (n·d·k,) lanes in (row, light ray, sub-ray) order; ``k = 1``: the light
+    ray's centre."""
     s, g, m = rays.lanes(k)
     if k == 1:
         xi = mi.Float(0.5)
@@ -325,7 +358,10 @@ def _sub_ray_gamma(rays: LightRays, k: int, seed: int):
         n = dr.width(s)
         rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + 0x2545F4914F6CDD1D * (seed + 1))
         xi = (mi.Float(m) + rng.next_float32()) / k
-    return s, (mi.Float(g) + xi) * dr.gather(mi.Float, rays.delta_gamma, s)
+    return s, rays.start(s) + (mi.Float(g) + xi) * dr.gather(mi.Float, rays.delta_gamma, s)
+
+
+_sub_ray_gamma = sub_ray_gamma
 
 
 def _row_alpha(queries, s):
@@ -377,7 +413,7 @@ def trace_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, k: i
     Each sub-ray is traced with Mitsuba from outside the scene along -w_l
     (:func:`first_blocker`)."""
     frame = queries.frame
-    s, gamma = _sub_ray_gamma(rays, k, seed)
+    s, gamma = sub_ray_gamma(rays, k, seed)
     U = _light_top(params, frame)
     origin = light_coords_to_world(frame, _row_alpha(queries, s), gamma, U)
     w = mi.Vector3f(*map(float, frame.axis))
@@ -397,7 +433,7 @@ def shadow_map_blocker_angles(params, queries: EpipolarQueries, rays: LightRays,
     if shadow_map.kind != "ortho":
         raise ValueError("a directional light needs an orthographic shadow map")
     frame = queries.frame
-    s, gamma = _sub_ray_gamma(rays, k, seed)
+    s, gamma = sub_ray_gamma(rays, k, seed)
     base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
     _, u, v, _ = shadow_map._coords(base)
     res = shadow_map.res

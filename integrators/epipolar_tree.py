@@ -1,7 +1,8 @@
 """epipolar_tree: Baran et al. 2010, "A Hierarchical Volumetric Shadow
 Algorithm for Single Scattering" (epipolar rectification + incremental
 partial-sum tree).  The shared rectified maps live in
-:mod:`integrators.epipolar_setup`, the sweep kernel in
+:mod:`integrators.epipolar_setup`, the point/spot-light maths (§9) in
+:mod:`integrators.epipolar_local_light`, the sweep kernel in
 :mod:`integrators.partial_sum_tree`, the separation of the integrand in
 :mod:`integrators.integrand_svd`.
 """
@@ -14,27 +15,28 @@ import mitsuba as mi
 import numpy as np
 
 from .capture import capture_shadow_map
+from .epipolar_local_light import (CHECK_POINTS, MAX_RANK,  # shared with the local kernel
+                                   light_ray_factor, local_light_ray_grid, local_query_terms,
+                                   local_separated_kernel, shadow_map_local_blocker_angles,
+                                   trace_local_blocker_angles)
 from .epipolar_setup import (assemble_queries, assign_queries, blocker_modes,
                              choose_slices, directional_query_terms, epipolar_frame_of,
                              first_leaf_visibility,
                              gather_queries, gray, light_ray_grid, light_side_factor,
-                             march_ring, rectified_depth, require_directional,
+                             march_ring, rectified_depth,
                              shadow_map_blocker_angles, to_samples, trace_blocker_angles)
 from .integrand_svd import SAMPLES, separate_integrand
 from .partial_sum_tree import integrate_slices
 from .template import EpiscatterIntegrator, read_choice, read_number
 
-#: extra points per axis on which the automatic rank is checked (besides the grid)
-CHECK_POINTS = 193
-#: largest automatic rank per colour channel
-MAX_RANK = 24
 
 
 class EpipolarTreeIntegrator(EpiscatterIntegrator):
     r"""Hierarchical volumetric shadows (``epipolar_tree``).
 
-    Single scattering with volumetric shadows of a directional light in the
-    homogeneous medium around the camera, after Baran et al. 2010:
+    Single scattering with volumetric shadows of a directional, point or
+    spot light (with or without a projected texture) in the homogeneous
+    medium around the camera, after Baran et al. 2010:
 
     1. *Rectification* (§3, §8): epipolar slices (Baran's sinh distribution
        or a uniform one); every camera sample becomes a query of its nearest
@@ -52,6 +54,16 @@ class EpipolarTreeIntegrator(EpiscatterIntegrator):
        every query's β.  1/sin β, the phase function (any Mitsuba phase,
        exactly, per query: for a directional light θ = β), σs and the
        irradiance are per-query factors.
+       Point/spot lights (§9, :mod:`integrators.epipolar_local_light`): γ is
+       the angle at the light, dt/r² = dγ/(L sin β) (a per-query factor);
+       per light ray, Mitsuba's intensity (spot fall-off and projected
+       texture, averaged over the ``prefilter`` sub-rays: §6 textured light)
+       times the light-side attenuation outside the path e^{-σt (L − r_in)};
+       the kernel K = e^{-σt (t + r − L)} f_p(β + γ) -- the phase function
+       depends on β + γ and is part of K -- is separated like the
+       directional one.  One γ lattice per frame (rows start at the spot
+       cone in their slice), so K's light-ray factors are computed once per
+       lattice cell.
     3. *Sweep* (§4-§5, Fig. 6): the Fenwick-tree kernel of
        :mod:`integrators.partial_sum_tree`; slices without blockers take its
        closed form.
@@ -72,7 +84,9 @@ class EpipolarTreeIntegrator(EpiscatterIntegrator):
                                every pixel within half a pixel of a slice)
     ``light_rays``             light rays ``d`` per slice; 0 (default):
                                the image diagonal in pixels (≥ 32), more
-                               in thick media (4 per mean free path, ≤ 4096)
+                               in thick media (4 per mean free path, ≤ 4096);
+                               point/spot: the widest slice's, narrower
+                               slices get fewer at the same angular spacing
     ``svd_rank``               terms N of the separated kernel per colour
                                channel; 0 (default): automatic, the smallest
                                N meeting ``svd_tolerance``
@@ -94,16 +108,21 @@ class EpipolarTreeIntegrator(EpiscatterIntegrator):
     ``self.timings`` splits the scattering stage into ``rectify``,
     ``blockers``, ``svd``, ``sweep``, ``unrectify`` and ``ring``.
 
-    Does not: point and spot lights (§9; raises ``ValueError``), textured
-    lights, translucent blockers, heterogeneous media.  Approximations, all
+    Does not: textured directional lights, translucent blockers,
+    heterogeneous media, area or environment lights.  Approximations, all
     vanishing as ``slices``, ``light_rays`` and the rank grow: a sample uses
     the blockers and the light-side factor of its nearest slice, up to half
     a slice spacing away (≈1 % where the box exit is oblique to the slices
-    at the automatic count; grazing shadow boundaries); visibility and L are
+    at the automatic count; grazing shadow boundaries; the edge of a spot
+    cone or of its texture seen edge-on: a few % on those pixels at the
+    automatic count); visibility and L are
     resolved to a light-ray interval (a shadow edge passing right by the eye
     in a thick medium needs many slices and light rays); the interval in
     which a view ray ends on a lit surface counts that surface's own depth
-    modes.  ``rectification="resampled"`` adds the shadow map's texel size.
+    modes; point/spot: the short segment between pinhole and near plane is
+    taken with one midpoint sample (the light must be farther from the eye
+    than the near plane).  ``rectification="resampled"`` adds the shadow
+    map's texel size (orthographic, perspective or cube map by light kind).
 
     Baran, Chen, Ragan-Kelley, Durand, Lehtinen: A Hierarchical Volumetric
     Shadow Algorithm for Single Scattering, ACM TOG 29(6), 2010.
@@ -128,14 +147,15 @@ class EpipolarTreeIntegrator(EpiscatterIntegrator):
 
     # -- the method ---------------------------------------------------------------
     def scattering(self, params, cap):
-        require_directional(params, "epipolar_tree")
         with self.stage("rectify"):
             frame = epipolar_frame_of(params)
             slices = choose_slices(frame, self.slices)
             queries = assign_queries(params, frame, slices, cap, self.ring_degrees)
         parts = []
         if queries.n:
-            parts.append((queries.sample, self.sweep_queries(params, cap, queries)))
+            sweep = (self.sweep_queries if params.light.kind == "directional"
+                     else self.sweep_local_queries)
+            parts.append((queries.sample, sweep(params, cap, queries)))
         with self.stage("ring") as keep:
             if dr.width(queries.ring_sample):
                 parts.append((queries.ring_sample,
@@ -162,6 +182,37 @@ class EpipolarTreeIntegrator(EpiscatterIntegrator):
         with self.stage("unrectify") as keep:
             terms = directional_query_terms(params, cap, queries, rays,
                                             first_leaf_visibility(queries, modes))
+            value = assemble_queries(terms, gather_queries(queries, integral))
+            keep.append(value)
+        return value
+
+    def sweep_local_queries(self, params, cap, queries):
+        """L_scat of every query of a point or spot light (§9,
+        :mod:`integrators.epipolar_local_light`)."""
+        with self.stage("rectify"):
+            t_end_max = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
+            rays = local_light_ray_grid(params, queries, self.light_rays, t_end_max)
+            D = rectified_depth(queries, rays)
+            L, colour, lit = light_ray_factor(params, queries, rays, self.prefilter)
+        with self.stage("blockers") as keep:
+            if self.rectification == "traced":
+                beta_b = trace_local_blocker_angles(params, queries, rays, self.prefilter, lit=lit)
+            else:
+                shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
+                beta_b = shadow_map_local_blocker_angles(params, queries, rays, shadow_map,
+                                                         self.prefilter)
+            modes = blocker_modes(queries, rays, beta_b, self.prefilter)
+            keep.extend([modes.beta, modes.weight])
+        with self.stage("svd") as keep:
+            A, B = local_separated_kernel(params, queries, rays, self.svd_rank, self.svd_tolerance)
+            keep.extend([A, B])
+        with self.stage("sweep") as keep:
+            integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count),
+                                        d_count=mi.Int32(rays.d_count))
+            keep.append(integral)
+        with self.stage("unrectify") as keep:
+            terms = local_query_terms(params, cap, queries, rays, colour,
+                                      first_leaf_visibility(queries, modes))
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.append(value)
         return value

@@ -391,6 +391,7 @@ def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w
     r_s = dr.gather(Int, p.r_count, slices)
     d_s = dr.gather(Int, p.d_count, slices)
     hist = dr.alloc_local(Int, hist_size)
+    r_s = dr.minimum(r_s, Int(hist_size))      # size literal: part of the kernel hash
     b = Int(0)
     while b < r_s:
         hist[b] = Int(0)
@@ -467,6 +468,8 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
     d_s = dr.gather(Int, p.d_count, slices)
     tree = dr.alloc_local(Float, tree_size)
     vis = dr.alloc_local(Float, leaf_size)
+    # size literals: part of the kernel hash (Dr.Jit 1.5 omits local array sizes)
+    d_s = dr.minimum(d_s, dr.minimum(Int(leaf_size), Int(tree_size // K - 1)))
 
     # BUILD-TREE in O(d): leaves (and vis = 1), then each node adds itself
     # to its parent.
@@ -566,6 +569,7 @@ def _closed_form_local_kernel(p: _Problem, slices, comps, size, out):
     r_s = dr.gather(Int, p.r_count, slices)
     d_s = dr.gather(Int, p.d_count, slices)
     cum = dr.alloc_local(Float, size)
+    d_s = dr.minimum(d_s, Int(size // K - 1))  # size literal: part of the kernel hash
     run = [Float(0.0) for _ in range(K)]
     g = Int(0)
     for k in range(K):

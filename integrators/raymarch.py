@@ -21,6 +21,10 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
 ``shadowmap_resolution``   texels per side (per cube face) (default 2048)
 ``jitter``                 jitter the sample inside each segment with one
                            random offset per ray (default false: midpoints)
+``spacing``                ``uniform`` segments, ``equiangular`` (uniform in
+                           the angle seen from a point/spot light: short
+                           segments where 1/r² peaks) or ``auto`` (default:
+                           equiangular for point/spot, uniform otherwise)
 =========================  ==================================================
 """
 from __future__ import annotations
@@ -41,21 +45,49 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
                                                 minimum=1, maximum=32768, integer=True)
         self.jitter = bool(props.get("jitter", False))
+        self.spacing = read_choice(props, "spacing", "auto", ("auto", "uniform", "equiangular"))
 
     def scattering(self, params, cap):
         shadow_map = None
         if self.visibility == "shadowmap":
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed)
+        spacing = self.spacing
+        if spacing == "auto":
+            spacing = "uniform" if params.light.kind == "directional" else "equiangular"
+        return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed,
+                     spacing)
 
 
-def march(params, cap, steps, shadow_map=None, jitter=False, seed=0):
+def step_boundaries(params, cap, steps, spacing):
+    """t(s) for s in [0, steps]: where segment k = [t(k), t(k+1)] lies on each
+    camera ray.  ``uniform``: t = d·s/steps.  ``equiangular`` (point/spot
+    lights; Kulla & Fajardo 2012): uniform in the angle θ subtended at the
+    light, t = t0 + b·tan θ (t0: the ray's closest approach to the light, b:
+    its distance), so segments shrink where 1/r² peaks."""
+    d = cap.d
+    if spacing == "uniform" or params.light.position is None:
+        return lambda s: d * (s / steps)
+    p_l = mi.Point3f(*map(float, params.light.position))
+    q = mi.Vector3f(p_l - cap.o)
+    t0 = dr.dot(q, cap.omega)
+    b = dr.norm(q - cap.omega * t0)
+    ok = b > 1e-6 * params.scene_extent
+    b = dr.select(ok, b, 1.0)
+    th_a, th_b = dr.atan2(-t0, b), dr.atan2(d - t0, b)
+
+    def t_of(s):
+        t = t0 + b * dr.tan(th_a + (th_b - th_a) * (s / steps))
+        return dr.select(ok, dr.clip(t, 0.0, d), d * (s / steps))
+    return t_of
+
+
+def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform"):
     """L_scat per camera sample by ``steps`` analytic segments (see module doc)."""
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
     sigma_s = color(params.medium.sigma_s)
-    dt = cap.d / steps
+    t_of = step_boundaries(params, cap, steps, spacing)
     if jitter:
         rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + seed_offset(seed, 0x853C49E6748FEA9B))
         offset = rng.next_float32()
@@ -64,8 +96,8 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0):
     n_steps = dr.opaque(mi.UInt32, steps)
 
     def body(k, L):
-        t = (mi.Float(k) + offset) * dt
-        x = cap.o + cap.omega * t
+        s = mi.Float(k)
+        x = cap.o + cap.omega * t_of(s + offset)
         wo, dist, L_light = sample_light(params, x)
         tau, t_in, t_out = segment_box(params, x, wo, dist)
         if shadow_map is None:
@@ -73,7 +105,7 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0):
         else:
             V = shadow_map.visibility(x)
         f_p = phase_eval(params, cap.omega, wo, x)
-        w = segment_weight(sigma_t, mi.Float(k) * dt, mi.Float(k + 1) * dt)
+        w = segment_weight(sigma_t, t_of(s), t_of(s + 1))
         L += sigma_s * f_p * L_light * light_transmittance(params, tau) * V * w
         return k + 1, L
 

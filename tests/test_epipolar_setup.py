@@ -200,3 +200,272 @@ def test_only_directional_lights():
         scene = mi.load_dict(scene_dict(light=light, res=(8, 6)))
         with pytest.raises(ValueError, match="only directional lights"):
             es.require_directional(SceneParams.from_scene(scene), "epipolar_tree")
+
+
+# --------------------------------------------------------------------------
+# Point and spot lights (Baran §9; integrators.epipolar_local_light)
+# --------------------------------------------------------------------------
+
+from types import SimpleNamespace  # noqa: E402
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from integrators import epipolar_local_light as ll  # noqa: E402
+from rectify import make_camera, point_frame, world_to_light_coords_reference  # noqa: E402
+
+POINT_LIGHT = np.array([0.3, 2.0, 0.4])          # conftest LIGHTS["point"]
+
+
+def light_ray_dirs(frame, alpha, gamma):
+    """NumPy: unit direction from the light of light ray (α, γ)."""
+    perp = np.cos(alpha)[..., None] * frame.b1 + np.sin(alpha)[..., None] * frame.b2
+    return np.sin(gamma)[..., None] * perp - np.cos(gamma)[..., None] * frame.axis
+
+
+def test_point_light_frame_and_queries():
+    """§9: the frame's axis points at the light; γ_end is the angle at the
+    light between the light ray through the query's end point and the
+    direction light -> eye, inside (0, π − β)."""
+    params, cap, frame, sl, q = setup("point")
+    assert frame.light_kind == "point" and not frame.is_directional
+    np.testing.assert_allclose(frame.light_position, POINT_LIGHT)
+    np.testing.assert_allclose(frame.axis * frame.light_distance,
+                               POINT_LIGHT - params.camera.origin, atol=1e-12)
+    sample = np.array(q.sample)
+    t_end = np.array(q.t_near) + np.array(cap.d)[sample]
+    end = params.camera.origin + np.array(cap.omega).T[sample] * t_end[:, None]
+    _, gamma, _ = world_to_light_coords_reference(frame, end)
+    np.testing.assert_allclose(np.array(q.gamma_end), gamma, atol=2e-5)
+    beta = np.array(q.beta)
+    assert np.all(np.array(q.gamma_end) < np.pi - beta)
+
+
+def test_local_light_rays_form_one_lattice():
+    """One Δγ for every row; row s starts at m_s·Δγ, ≤ d light rays, and its
+    light rays cover its lit range: [0, max γ_end] (point) or that range
+    clipped to the cone (spot); dark rows get one light ray."""
+    d = 32
+    for light in ("point", "spot"):
+        params, cap, frame, sl, q = setup(light)
+        rays = ll.local_light_ray_grid(params, q, d)
+        delta = np.array(rays.delta_gamma)
+        assert np.all(delta == delta[0])
+        m, count, lo = np.array(rays.offset), np.array(rays.d_count), np.array(rays.gamma_lo)
+        np.testing.assert_allclose(lo, m * delta[0], rtol=1e-6, atol=1e-7)
+        assert np.all((count >= 1) & (count <= d))
+        assert rays.lattice_size == m.max() + d
+        a, b, lit = (np.array(v) for v in ll.light_ray_range(params, q))
+        end = lo + count * delta[0]
+        assert np.all(lo[lit] <= a[lit] + 1e-6) and np.all(end[lit] >= b[lit] - 1e-6)
+        gmax = np.zeros(q.n)
+        np.maximum.at(gmax, np.array(q.row), np.array(q.gamma_end))
+        if light == "point":
+            assert lit.all() and np.all(m == 0)
+            np.testing.assert_allclose(b, gmax, rtol=1e-6)
+        else:
+            assert lit.any() and np.all(count[~lit] == 1)
+        D = np.array(es.rectified_depth(q, rays))
+        row, col = np.array(q.row), np.array(q.col)
+        np.testing.assert_allclose(D[row, col], (np.array(q.gamma_end) - lo[row]) / delta[0],
+                                   rtol=1e-4, atol=1e-3)
+
+
+@settings(max_examples=25, deadline=None)
+@given(axis=st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: np.linalg.norm(v) > 0.1),
+       cutoff=st.floats(5.0, 90.0), alpha=st.floats(-math.pi, math.pi))
+def test_cone_interval_against_brute_force(axis, cutoff, alpha):
+    """cone_interval = the γ ∈ [0, π] of slice α whose light ray is inside
+    the spot cone (angle to the spot axis < cutoff), up to CONE_MARGIN."""
+    cam = make_camera([0.0, 0.0, 0.0], [0.0, 0.0, -1.0])
+    frame = point_frame(cam, [0.3, 1.0, -2.0], kind="spot")
+    a = np.asarray(axis) / np.linalg.norm(axis)
+    params = SimpleNamespace(light=SimpleNamespace(kind="spot", spot_axis=a, cutoff_angle=cutoff))
+    lo, hi, lit = (np.array(v)[0] for v in ll.cone_interval(params, frame, mi.Float(alpha)))
+    gamma = np.linspace(0.0, math.pi, 20001)
+    w = light_ray_dirs(frame, np.full_like(gamma, alpha), gamma)
+    inside = w @ a > math.cos(math.radians(cutoff))
+    if not inside.any():
+        assert not lit or hi - lo < 3 * ll.CONE_MARGIN
+        return
+    assert lit
+    eps = 2 * ll.CONE_MARGIN + 2e-4
+    assert lo - eps <= gamma[inside].min() and gamma[inside].max() <= hi + eps
+    assert gamma[inside].min() <= lo + eps and hi - eps <= gamma[inside].max()
+
+
+def first_hit_distance(origin, w):
+    """NumPy oracle: distance along unit w from origin to the sphere or the
+    floor rectangle (conftest's blockers), or None."""
+    hits = []
+    oc = origin - SPHERE_C
+    b, c = oc @ w, oc @ oc - SPHERE_R ** 2
+    disc = b * b - c
+    if disc >= 0:
+        hits += [s for s in (-b - math.sqrt(disc), -b + math.sqrt(disc)) if s > 0]
+    if abs(w[1]) > 1e-12:
+        s = (FLOOR_Y - origin[1]) / w[1]
+        p = origin + s * w
+        if s > 0 and abs(p[0]) <= FLOOR_HALF and abs(p[2]) <= FLOOR_HALF:
+            hits.append(s)
+    return min(hits) if hits else None
+
+
+def test_traced_local_blockers_against_ray_oracle():
+    """β_b = the eye's angle of the first blocker seen from the point light
+    along each light ray (centre, k = 1); π if nothing blocks it."""
+    params, cap, frame, sl, q = setup("point")
+    rays = ll.local_light_ray_grid(params, q, 24)
+    beta_b = np.array(ll.trace_local_blocker_angles(params, q, rays, k=1)).reshape(q.n, 24)
+    alpha = np.array(q.alpha, np.float64)
+    lo, delta = np.array(rays.gamma_lo, np.float64), float(rays.delta_gamma[0])
+    expected = np.full((q.n, 24), np.pi)
+    for s in range(q.n):
+        w = light_ray_dirs(frame, np.full(24, alpha[s]), lo[s] + (np.arange(24) + 0.5) * delta)
+        for g in range(24):
+            r_b = first_hit_distance(POINT_LIGHT, w[g])
+            if r_b is not None:
+                v = POINT_LIGHT + r_b * w[g] - params.camera.origin
+                expected[s, g] = math.atan2(np.linalg.norm(np.cross(v, frame.axis)), v @ frame.axis)
+    blocked = expected < np.pi
+    assert blocked.any() and (~blocked).any()
+    agree = (beta_b < np.pi) == blocked
+    assert agree.mean() > 0.99, agree.mean()
+    both = agree & blocked
+    np.testing.assert_allclose(beta_b[both], expected[both], atol=2e-4)
+
+
+def test_blocked_light_ray_shades_exactly_the_later_view_rays():
+    """On a light ray γ, r = L sin β / sin(β+γ) grows with β (§9 visibility
+    rule): points beyond the blocker (r > r_b) are exactly those with β > β_b."""
+    L = 2.7
+    for gamma in (0.05, 0.7, 1.9, 3.0):
+        beta = np.linspace(1e-3, math.pi - gamma - 1e-3, 2001)
+        r = L * np.sin(beta) / np.sin(beta + gamma)
+        assert np.all(np.diff(r) > 0)
+        r_b = 0.5 * (r[1000] + r[1001])
+        beta_b = math.atan2(r_b * math.sin(gamma), L - r_b * math.cos(gamma))  # the blocker's β
+        np.testing.assert_array_equal(r > r_b, beta > beta_b)
+
+
+@pytest.mark.parametrize("light", ["point", "spot", "spot_textured"])
+def test_light_ray_factor_against_mitsuba_intensity(light):
+    """L(α, γ) = Mitsuba's intensity toward the light ray (sampled by
+    sample_direction at world points built in NumPy) times e^{-σt L} (the
+    light is inside the box: r_in = 0), with the colour factored out when the
+    light is untextured; k = 1: the light ray's centre."""
+    params, cap, frame, sl, q = setup(light)
+    rays = ll.local_light_ray_grid(params, q, 16)
+    L, colour, lit = ll.light_ray_factor(params, q, rays, k=1)
+    L = np.array(L)
+    assert (L.ndim == 3) == (light == "spot_textured")
+    alpha = np.array(q.alpha, np.float64)
+    lo, delta = np.array(rays.gamma_lo, np.float64), float(rays.delta_gamma[0])
+    count = np.array(rays.d_count)
+    s, g = np.divmod(np.arange(q.n * 16), 16)
+    w = light_ray_dirs(frame, alpha[s], lo[s] + (g + 0.5) * delta)
+    x = POINT_LIGHT if light == "point" else params.light.position
+    pts = x + w * 0.5
+    it = dr.zeros(mi.Interaction3f)
+    it.p = mi.Point3f(*(mi.Float(pts[:, i].astype(np.float32)) for i in range(3)))
+    ds, spec = params.light.emitter.sample_direction(it, mi.Point2f(0.5, 0.5))
+    I = np.array(mi.Color3f(spec)).T.reshape(-1, 3) * 0.25          # · r², r = 0.5
+    expected = I * np.exp(-params.medium.sigma_t[0] * frame.light_distance)
+    got = L.reshape(q.n * 16, -1) * np.array(colour).reshape(1, -1)
+    used = g < count[s]
+    np.testing.assert_allclose(got[used], expected[used], rtol=2e-3, atol=1e-6 * expected.max())
+    assert np.all(got[~used] == 0)
+    assert np.array_equal(np.array(lit).astype(bool), used & (I.max(1) > 0))
+
+
+@settings(max_examples=40, deadline=None)
+@given(beta=st.floats(0.02, math.pi - 0.05), frac=st.floats(0.01, 0.98),
+       sigma_t=st.floats(0.0, 3.0), g=st.floats(-0.8, 0.8))
+def test_local_kernel_against_triangle_geometry(beta, frac, sigma_t, g):
+    """K(γ, β) = e^{-σt (t + r − L)} f_p with t, r from the law of sines and
+    Mitsuba's HG at cos θ = −cos(β+γ) (DESIGN §1 convention), Dr.Jit and
+    NumPy versions, inside the queries' range (x ≤ x_max)."""
+    L = 1.7
+    gamma = frac * (math.pi - beta)
+    t = L * math.sin(gamma) / math.sin(beta + gamma)
+    r = L * math.sin(beta) / math.sin(beta + gamma)
+    cos_theta = -math.cos(beta + gamma)
+    hg = (1 - g * g) / (4 * math.pi * (1 + g * g + 2 * g * cos_theta) ** 1.5)
+    expected = math.exp(-sigma_t * (t + r - L)) * hg
+    x = math.tan(beta / 2) * math.tan(gamma / 2)
+    scene = mi.load_dict(scene_dict(light="point", res=(4, 3), phase={"type": "hg", "g": g}))
+    params = SceneParams.from_scene(scene)
+    got = float(ll.local_kernel(params, sigma_t, L, min(x + 1e-3, 1 - 1e-6),
+                                math.tan(beta / 2), gamma)[0])
+    assert got == pytest.approx(expected, rel=2e-3, abs=1e-30)
+    K = ll.local_kernel_numpy(params, sigma_t, L, min(x + 1e-3, 1 - 1e-6))
+    assert float(K(gamma, beta)) == pytest.approx(expected, rel=1e-4, abs=1e-300)
+
+
+def test_attenuation_exponent_is_continued_c1():
+    """E(x) = k x/(1 − x) up to x_max, then its tangent line (C¹)."""
+    k, xm = 3.0, 0.8
+    x = np.array([xm - 1e-7, xm, xm + 1e-7, 0.95, 2.0])
+    E, dE = ll.attenuation_exponent(x, xm, k)
+    assert E[0] == pytest.approx(k * x[0] / (1 - x[0]))
+    assert E[2] - E[1] == pytest.approx(1e-7 * k / (1 - xm) ** 2, rel=1e-4)
+    np.testing.assert_allclose(dE[2:], k / (1 - xm) ** 2)
+    Ed, dEd = ll.attenuation_exponent(mi.Float(x.astype(np.float32)), xm, k)
+    np.testing.assert_allclose(np.array(Ed), E, rtol=1e-5)
+    np.testing.assert_allclose(np.array(dEd), dE, rtol=1e-5)
+
+
+@pytest.mark.parametrize("phase", [None, {"type": "hg", "g": 0.6}])
+@pytest.mark.parametrize("beta,gamma,delta,sigma_t", [
+    (1.0, 0.3, 0.05, 0.3),        # smooth
+    (3.08, 0.0, 0.02, 2.0),       # toward the anti-epipole: E bends from 0 to 3.9
+    (3.1, 0.0, 0.03, 5.0),        # ... and decays by e^{-400} in the interval
+    (0.2, 1.5, 0.2, 1.0),         # a wide interval
+])
+def test_cell_mean_against_quadrature(phase, beta, gamma, delta, sigma_t):
+    """LocalKernel.cell_mean = the mean of K over [γ, γ+Δγ] (fine midpoint
+    quadrature of local_kernel), also where K decays by e^{-300} in it."""
+    scene = mi.load_dict(scene_dict(light="point", res=(4, 3), phase=phase))
+    params = SceneParams.from_scene(scene)
+    L, x_max = 2.0, 1 - 1e-6
+    n = 20000
+    g = gamma + (np.arange(n) + 0.5) / n * delta
+    ok = np.tan(beta / 2) * np.tan(g / 2) < 1
+    values = np.where(ok, np.array(ll.local_kernel(params, sigma_t, L, x_max, math.tan(beta / 2),
+                                                   mi.Float(g.astype(np.float32)))), 0.0)
+    expected = values.mean()
+    got = float(ll.local_kernel(params, sigma_t, L, x_max, math.tan(beta / 2), gamma, delta)[0])
+    assert got == pytest.approx(expected, rel=5e-3)
+
+
+@pytest.mark.parametrize("light,phase,sigma_t", [("point", None, 0.3),
+                                                ("spot", {"type": "hg", "g": 0.5}, 1.5)])
+def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t):
+    """Σ_i A_i B_i at (row, light ray, query) = the cell mean of K at the
+    query's β, for every light ray its depth covers (relative L2 per query
+    within a few times the SVD tolerance)."""
+    params, cap, frame, sl, q = setup(light, phase=phase, sigma_t=sigma_t)
+    rays = ll.local_light_ray_grid(params, q, 24)
+    tol = 1e-4
+    A, B = ll.local_separated_kernel(params, q, rays, 0, tol)
+    A, B = np.array(A)[:, :, 0], np.array(B)[:, :, 0]            # (n, d, N), (n, r, N)
+    x_max = ll.query_x_max(q)
+    L = float(frame.light_distance)
+    delta = float(rays.delta_gamma[0])
+    lo, count = np.array(rays.gamma_lo), np.array(rays.d_count)
+    row, col, beta = np.array(q.row), np.array(q.col), np.array(q.beta)
+    D = np.array(es.rectified_depth(q, rays))[row, col]
+    pick = np.arange(0, q.count, 17)
+    errs = []
+    for j in pick:
+        s, c = row[j], col[j]
+        cells = np.arange(min(int(np.ceil(D[j])), count[s]))
+        if cells.size == 0:
+            continue
+        approx = A[s, cells] @ B[s, c]
+        exact = np.array(ll.local_kernel(params, sigma_t, L, x_max, math.tan(beta[j] / 2),
+                                         mi.Float((lo[s] + cells * delta).astype(np.float32)),
+                                         delta))
+        errs.append(np.linalg.norm(approx - exact) / np.linalg.norm(exact))
+    assert len(errs) > 20, len(errs)
+    assert np.median(errs) < 10 * tol and max(errs) < 1e-2, (np.median(errs), max(errs))

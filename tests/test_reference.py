@@ -57,7 +57,9 @@ def test_reference_is_cached_with_sidecar(cache):
     path = reference.reference_path(SCENE, TINY, 32)
     assert info["path"] == path and os.path.isfile(reference.sidecar_path(path))
     layers = read_exr(path)
-    assert set(layers) == {"full", "half_a", "half_b"}
+    assert set(layers) == {"full", "half_a", "half_b", "variance"}
+    assert np.all(layers["variance"] >= 0)
+    assert info["relmse_noise_chunks"]["block_1"] > 0
     np.testing.assert_allclose(layers["full"], 0.5 * (layers["half_a"] + layers["half_b"]),
                                rtol=1e-6, atol=1e-7)
     with open(reference.sidecar_path(path)) as f:

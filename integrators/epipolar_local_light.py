@@ -1,0 +1,734 @@
+"""Point and spot lights in the epipolar tree (Baran et al. 2010, §9).
+
+The slices, the queries and the sweep are those of the directional light
+(:mod:`integrators.epipolar_setup`); §9 changes the light rays: γ is the
+*angle at the light* between the light ray and the direction light -> eye
+(:mod:`rectify` conventions).  This module holds what that changes.
+
+Geometry (§9)
+-------------
+``o`` the pinhole, ``p_l`` the light, ``L = |p_l − o|``, the axis from ``o``
+toward ``p_l``.  In slice α, view ray β (angle at ``o`` from the axis) and
+light ray γ (angle at ``p_l`` from the direction toward ``o``) meet at the
+third corner ``x`` of the triangle (o, p_l, x), whose angle is π − β − γ; by
+the law of sines
+
+    t = L sin γ / sin(β+γ)   (from the eye),   r = L sin β / sin(β+γ)   (from the light).
+
+Along view ray β, γ grows from 0 (at the eye) to π − β (at infinity).
+
+Integrand in γ (the §4 change of variables)
+-------------------------------------------
+``dt/dγ = L sin β / sin²(β+γ)``, hence ``dt / r² = dγ / (L sin β)``: the
+1/r² fall-off and the Jacobian cancel up to a per-view-ray factor.  The
+angle at ``x`` between −ω and the direction to the light is θ = π − β − γ,
+so ``cos θ = −cos(β+γ)`` and the phase function is a function of β+γ.  With
+the light-side path ``τ = r − r_in(α, γ)`` (``r_in``: where the light ray
+enters the medium box, 0 for a light inside it; ``x`` is always inside)
+
+    L_scat = σs / (L sin β) ∫ I(α,γ) e^{-σt (L − r_in)} · K(γ, β) · V dγ,
+    K(γ, β) = e^{-σt (t + r − L)} f_p(β+γ),
+    t + r − L = 2L x / (1 − x),   x = tan(β/2) tan(γ/2)
+
+(the half-angle form of ``L (sin β + sin γ − sin(β+γ)) / sin(β+γ)``: exact
+and stable; x < 1 ⟺ β+γ < π).  ``I(α, γ)`` is Mitsuba's intensity with the
+spot fall-off and projected texture: per light ray, initialised into the
+tree like §6's textured light, together with ``e^{-σt (L − r_in)}``
+(:func:`light_ray_factor`).  For L → ∞ with γ = γ_dir/L the kernel becomes
+the directional ``e^{-σt γ_dir tan(β/2)}``.
+
+Visibility
+----------
+On light ray γ, ``dr/dβ = L sin γ / sin²(β+γ) > 0``: the distance from the
+light grows with β.  A light ray first blocked at ``r_b`` shades exactly
+the view rays with ``β > β_b``, β_b = the eye's angle of the blocker point:
+the directional rule, so the sweep over increasing β (Fig. 6) needs no
+change (:func:`trace_local_blocker_angles`, traced from ``p_l``;
+:func:`shadow_map_local_blocker_angles`, read from the perspective/cube
+shadow map).
+
+Light rays (:func:`local_light_ray_grid`)
+-----------------------------------------
+Row α needs ``[γ_lo, γ_hi]``: ``[0, max γ_end]`` for a point light, clipped
+to the spot cone's γ-interval in the slice for a spot light
+(:func:`cone_interval`; rows outside the cone are dark: one light ray, no
+updates, the sweep's closed form).  Uniform in γ = uniform in ``∫ dt/r²``
+(equiangular sampling).  All rows share one lattice ``γ = j·Δγ`` (Δγ: the
+widest row's range / (d − 1)); a row starts at a lattice point and has
+``d_count ≤ d`` light rays, so the kernel's light-ray factors are computed
+once per lattice cell, not once per (row, light ray).
+
+Kernel separation (:func:`separate_local_channel`, :func:`local_separated_kernel`)
+---------------------------------------------------------------------------------
+K is sampled as in the directional case (log-spaced grids, γ-quadrature
+weights, each view ray normalised), SVD'd and extended exactly (Nyström)
+in Dr.Jit.  K only matters where queries use it (x ≤ x_max, the largest x
+of a query's end point); beyond, the exponent is continued linearly in x
+(C¹), which keeps K smooth and of low rank on the whole rectangle
+(:func:`attenuation_exponent`).  Each leaf holds the mean of K over its
+interval, integrated in the variable E (exact for a pure exponential --
+K near the eye -- and for E bending within the interval, toward the
+anti-epipole), with the phase at the interval's e^{-E}-weighted centroid
+(:meth:`LocalKernel.cell_mean`).
+
+Per query (:func:`local_query_terms`)
+-------------------------------------
+``σs·colour·Δγ / (L sin β)`` times the sweep's sum, re-based to the ray
+origin (``e^{σt t_near}``), minus the part between pinhole and near plane
+(one midpoint sample of the exact integrand, lit as the first leaf says).
+
+Ring (§6): view rays within ``ring_degrees`` of the light or of its
+opposite are ray-marched (:func:`~integrators.epipolar_setup.march_ring`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from rectify.coords import direction_to_alpha_beta
+
+from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays,
+                             first_blocker, gray, sub_ray_gamma)
+from .integrand_svd import SAMPLES, separate_integrand
+from .light_transport import (_slabs, color, phase_eval, point, sample_light, segment_box,
+                              segment_weight)
+
+#: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
+CONE_MARGIN = 1e-4
+#: largest exponent of the per-light-ray factor e^{-σt (L − r_in)} (float32)
+MAX_EXPONENT = 60.0
+#: extra points per axis on which the automatic rank is checked (besides the
+#: grid; also used by the directional kernel of :mod:`integrators.epipolar_tree`)
+CHECK_POINTS = 193
+#: largest automatic rank per colour channel (both light kinds)
+MAX_RANK = 24
+
+
+# --------------------------------------------------------------------------
+# Light rays (§9)
+# --------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class LocalLightRays(LightRays):
+    """Light rays on one lattice of angles at the light (module doc): every
+    row has the same ``Δγ``; row s starts at ``γ_lo = m_s·Δγ`` and has
+    ``d_count[s] ≤ d`` light rays (leaf g of row s is lattice cell
+    ``m_s + g``).  ``r_in`` (n·d,): distance from the light at which each
+    light ray (centre) enters the medium box (0 inside it, +inf if it
+    misses the box).  ``h`` and ``h_ref`` (directional) are unused."""
+    r_in: mi.Float | None = None
+    offset: mi.UInt32 | None = None     # (n,) m_s
+    d_count: mi.UInt32 | None = None    # (n,)
+
+    @property
+    def lattice_size(self) -> int:
+        """Lattice cells any row uses: max m_s + d."""
+        return int(dr.max(self.offset)[0]) + self.d
+
+    def used(self, per_ray: int = 1) -> mi.Bool:
+        """(n·d·per_ray,) lanes of light rays that exist (g < d_count)."""
+        s, g, _ = self.lanes(per_ray)
+        return g < dr.gather(mi.UInt32, self.d_count, s)
+
+
+def _basis(frame):
+    return tuple(mi.Vector3f(*map(float, v)) for v in (frame.b1, frame.b2, frame.axis))
+
+
+def light_ray_direction(frame, alpha, gamma) -> mi.Vector3f:
+    """Unit direction from the light of light ray γ of slice α:
+    ``sin γ (cos α b1 + sin α b2) − cos γ axis``."""
+    b1, b2, ax = _basis(frame)
+    sa, ca = dr.sincos(mi.Float(alpha))
+    sg, cg = dr.sincos(mi.Float(gamma))
+    return sg * (ca * b1 + sa * b2) - cg * ax
+
+
+def cone_interval(params, frame, alpha):
+    """(lo, hi, lit): the γ-interval of slice α inside a spot light's cone
+    (``[0, π]`` and True for a point light).
+
+    ``w(γ)·a = sin γ (perp·a) − cos γ (axis·a) = R cos(γ − φ)`` (a: the spot
+    axis), so the cone ``w·a > cos(cutoff)`` is ``|γ − φ| < acos(cos(cutoff)/R)``,
+    an arc of at most π (cutoff ≤ 90°) meeting ``[0, π]`` in one interval."""
+    alpha = mi.Float(alpha)
+    if params.light.kind != "spot":
+        n = dr.width(alpha)
+        return dr.zeros(mi.Float, n), dr.full(mi.Float, math.pi, n), dr.full(mi.Bool, True, n)
+    a = np.asarray(params.light.spot_axis, np.float64)
+    sa, ca = dr.sincos(alpha)
+    p = ca * float(frame.b1 @ a) + sa * float(frame.b2 @ a)
+    q = -float(frame.axis @ a)
+    R = dr.sqrt(p * p + q * q)
+    cos_c = math.cos(math.radians(params.light.cutoff_angle))
+    phi = dr.atan2(p, q)
+    delta = dr.acos(dr.minimum(cos_c / dr.maximum(R, 1e-30), 1.0)) + CONE_MARGIN
+    lo, hi = phi - delta, phi + delta
+    wrapped = hi <= 0.0                      # the arc's copy shifted by 2π
+    lo = dr.select(wrapped, lo + 2 * math.pi, lo)
+    hi = dr.select(wrapped, hi + 2 * math.pi, hi)
+    lo, hi = dr.maximum(lo, 0.0), dr.minimum(hi, math.pi)
+    return lo, hi, (R > cos_c) & (hi > lo)
+
+
+def light_ray_range(params, queries: EpipolarQueries):
+    """(γ_lo, γ_hi, lit) per row: ``[0, max γ_end]`` of the row's queries,
+    clipped to the spot cone (:func:`cone_interval`); ``lit`` False for rows
+    outside the cone (their γ range is then ``[0, max γ_end]``)."""
+    gamma_max = dr.zeros(mi.Float, queries.n)
+    dr.scatter_reduce(dr.ReduceOp.Max, gamma_max, queries.gamma_end, queries.row)
+    gamma_max = dr.maximum(gamma_max, 1e-6)
+    lo, hi, lit = cone_interval(params, queries.frame, queries.alpha)
+    hi = dr.minimum(hi, gamma_max)
+    lit &= hi > lo
+    return dr.select(lit, lo, 0.0), dr.select(lit, hi, gamma_max), lit
+
+
+def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
+                         t_end_max: float = 0.0) -> LocalLightRays:
+    """Light rays on one lattice (:class:`LocalLightRays`): ``Δγ`` = the
+    widest row's range (:func:`light_ray_range`) / (d − 1), so that every
+    row's range, its start snapped down to the lattice, fits in ``d`` light
+    rays (``d = 0``: :func:`~integrators.epipolar_setup.auto_light_rays` with
+    the longest camera path ``t_end_max``); dark rows get one light ray.
+    Rows with a narrow range thus get fewer light rays, at the common
+    spacing, and the kernel is evaluated once per lattice cell
+    (:func:`local_separated_kernel`)."""
+    frame = queries.frame
+    lo, hi, lit = light_ray_range(params, queries)
+    if not d:
+        cam = params.camera
+        d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)),
+                            t_end_max)
+    d = max(int(d), 2)
+    width = float(dr.max(hi - lo)[0])
+    delta = max(width / (d - 1), 1e-7)
+    m = mi.UInt32(dr.floor(lo / delta))
+    start = mi.Float(m) * delta
+    count = mi.UInt32(dr.clip(dr.ceil((hi - start) / delta), 1, d))
+    count = dr.select(lit, count, 1)
+    rays = LocalLightRays(d, start + mi.Float(count) * delta, dr.full(mi.Float, delta, queries.n),
+                          None, None, start, offset=m, d_count=count)
+    s, gamma = rays.positions(0.5)
+    w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
+    t_near, t_far = _slabs(mi.Point3f(point(frame.light_position)), w,
+                           point(params.medium.bounds_min), point(params.medium.bounds_max))
+    rays.r_in = dr.select(t_far >= dr.maximum(t_near, 0.0), dr.maximum(t_near, 0.0), dr.inf)
+    dr.eval(rays.gamma_max, rays.delta_gamma, rays.gamma_lo, rays.r_in, rays.offset, rays.d_count)
+    return rays
+
+
+def light_intensity(params, frame, w) -> mi.Color3f:
+    """Mitsuba's intensity toward unit directions ``w`` from the light (spot
+    fall-off and texture included): the delivered radiance at distance ``L``
+    times ``L²``."""
+    ell = float(frame.light_distance)
+    _, _, spec = sample_light(params, mi.Point3f(point(frame.light_position)) + w * ell)
+    return spec * (ell * ell)
+
+
+def projects_texture(params) -> bool:
+    """Whether the light is a spot light with a projected ``texture``.
+    (Mitsuba's spot light lists a uniform ``texture.value`` = 1 when it has
+    none -- spatially constant textures are refused -- so only other
+    ``texture.*`` parameters mean a texture.)"""
+    if params.light.kind != "spot":
+        return False
+    keys = mi.traverse(params.light.emitter).keys()
+    return any(k.startswith("texture.") and k != "texture.value" for k in keys)
+
+
+def _channels(params) -> int:
+    """Colour channels of the per-light-ray factor: 1 for an untextured light
+    in a grey medium (its colour is then a per-query factor), else 3."""
+    return 1 if (not projects_texture(params) and gray(params.medium.sigma_t)) else 3
+
+
+def _light_colour(params, frame) -> mi.Color3f:
+    """The intensity along the spot axis (fall-off 1), or of the point light."""
+    axis = params.light.spot_axis if params.light.kind == "spot" else frame.axis
+    return light_intensity(params, frame, mi.Vector3f(*map(float, axis)))
+
+
+def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int = 1,
+                     seed: int = 0):
+    """(L, colour, lit): the tree's per-light-ray factor (§6 textured light)
+
+        L(α, γ) = Ī(α, γ) · e^{-σt (L − r_in(α, γ))}
+
+    (n, d) or (n, d, 3) (:func:`_channels`), Ī the intensity averaged over
+    the ``k`` sub-rays of :func:`~integrators.epipolar_setup.sub_ray_gamma`
+    (same ``seed``: the blockers' sub-rays; prefilters the texture and the
+    cone's edge); ``colour``: the light's intensity along its axis when L
+    is grey (L then holds the fall-off alone), else 1; ``lit`` (n·d·k,):
+    existing sub-rays carrying light."""
+    frame = queries.frame
+    s, gamma = sub_ray_gamma(rays, k, seed)
+    idx = dr.compress(rays.used(k))           # sub-rays of existing light rays
+    w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, dr.gather(mi.UInt32, s, idx)),
+                            dr.gather(mi.Float, gamma, idx))
+    I = light_intensity(params, frame, w)
+    lit = dr.zeros(mi.Bool, dr.width(s))
+    dr.scatter(lit, dr.max(I) > 0, idx)
+    n_rays = queries.n * rays.d
+    I_sum = dr.zeros(mi.Color3f, n_rays)
+    dr.scatter_reduce(dr.ReduceOp.Add, I_sum, I, idx // k)
+    I_mean = I_sum * (1.0 / k)
+    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+    depth = frame.light_distance - rays.r_in
+    C = _channels(params)
+    if C == 1:
+        colour = _light_colour(params, frame)
+        intensity = np.array([float(colour[i][0]) for i in range(3)])
+        c = int(np.argmax(intensity))
+        scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
+        values = I_mean[c] * scale * ext_clamped(sigma_t[0], depth)
+        values = dr.select(dr.isfinite(rays.r_in), values, 0.0)
+        L = mi.TensorXf(values, shape=(queries.n, rays.d))
+    else:
+        out = dr.zeros(mi.Float, n_rays * 3)
+        lane = dr.arange(mi.UInt32, n_rays)
+        for ch in range(3):
+            v = I_mean[ch] * ext_clamped(sigma_t[ch], depth)
+            dr.scatter(out, dr.select(dr.isfinite(rays.r_in), v, 0.0), lane * 3 + ch)
+        L = mi.TensorXf(out, shape=(queries.n, rays.d, 3))
+        colour = mi.Color3f(1.0)
+    dr.eval(L.array, lit)
+    return L, colour, lit
+
+
+def ext_clamped(sigma_t: float, depth):
+    """e^{-σt·depth} with the exponent kept ≤ MAX_EXPONENT (float32)."""
+    return dr.exp(dr.minimum(-float(sigma_t) * depth, MAX_EXPONENT))
+
+
+# --------------------------------------------------------------------------
+# Blocker maps S[α, γ] (§3, §7, §9)
+# --------------------------------------------------------------------------
+
+def _eye_beta(frame, p) -> mi.Float:
+    """β of world points ``p`` seen from the eye."""
+    eye = mi.Point3f(point(frame.camera.origin))
+    return direction_to_alpha_beta(frame, mi.Vector3f(p - eye))[1]
+
+
+def trace_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLightRays,
+                               k: int = 1, seed: int = 0, lit=None) -> mi.Float:
+    """β_b = the eye's angle of the first blocker of ``k`` sub-rays per light
+    ray, each traced with Mitsuba from ``p_l`` outward
+    (:func:`~integrators.epipolar_setup.first_blocker`: split at the medium
+    box, which does not block); π where nothing blocks the sub-ray.  (n·d·k,)
+    lanes in (row, light ray, sub-ray) order; only the ``lit`` sub-rays are
+    traced (the others carry no light: π)."""
+    frame = queries.frame
+    s, gamma = sub_ray_gamma(rays, k, seed)
+    idx = dr.arange(mi.UInt32, dr.width(s)) if lit is None else dr.compress(lit)
+    out = dr.full(mi.Float, math.pi, dr.width(s))
+    if dr.width(idx):
+        alpha = dr.gather(mi.Float, queries.alpha, dr.gather(mi.UInt32, s, idx))
+        w = light_ray_direction(frame, alpha, dr.gather(mi.Float, gamma, idx))
+        origin = mi.Point3f(*(dr.full(mi.Float, float(c), dr.width(idx))
+                              for c in frame.light_position))
+        hit, p = first_blocker(params, origin, w)
+        dr.scatter(out, dr.select(hit, _eye_beta(frame, p), math.pi), idx)
+    dr.eval(out)
+    return out
+
+
+def shadow_map_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLightRays,
+                                    shadow_map, k: int = 1, seed: int = 0) -> mi.Float:
+    """Like :func:`trace_local_blocker_angles`, but the blocker distance read
+    from a perspective (spot) or cube (point) :class:`~integrators.capture.ShadowMap`
+    (nearest texel, the paper's "rectify the shadow map", §3): the light ray
+    is shadowed beyond ``r_b = z_b + bias`` (the map's own test)."""
+    if shadow_map.kind == "ortho":
+        raise ValueError("a point or spot light needs a perspective or cube shadow map")
+    frame = queries.frame
+    s, gamma = sub_ray_gamma(rays, k, seed)
+    w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
+    p_l = mi.Point3f(point(frame.light_position))
+    face, u, v, _ = shadow_map._coords(p_l + w * float(frame.light_distance))
+    res = shadow_map.res
+    iu = mi.UInt32(dr.clip(mi.Int32(dr.round(u)), 0, res - 1))
+    iv = mi.UInt32(dr.clip(mi.Int32(dr.round(v)), 0, res - 1))
+    z_b = dr.gather(mi.Float, shadow_map.depth, face * res * res + iv * res + iu)
+    known = dr.isfinite(z_b)
+    if shadow_map.kind == "persp":   # outside the map: no blocker information
+        known &= (u > -0.5) & (u < res - 0.5) & (v > -0.5) & (v < res - 0.5)
+    beta_b = dr.select(known, _eye_beta(frame, p_l + w * (z_b + shadow_map.bias)), math.pi)
+    dr.eval(beta_b)
+    return beta_b
+
+
+# --------------------------------------------------------------------------
+# The kernel K(γ, β) and its separation (§6, Eq. 4)
+# --------------------------------------------------------------------------
+
+def attenuation_exponent(x, x_max: float, k: float):
+    """(E, ∂E/∂x) of E(x) = k x / (1 − x) (k = 2σt L: E = σt (t + r − L)),
+    continued linearly beyond ``x_max`` (module doc); Dr.Jit or NumPy."""
+    xm = x_max
+    e_max, slope_max = k * xm / (1.0 - xm), k / (1.0 - xm) ** 2
+    if isinstance(x, np.ndarray) or np.isscalar(x):
+        xc = np.minimum(x, xm)
+        inside = x <= xm
+        return (np.where(inside, k * xc / (1.0 - xc), e_max + slope_max * (x - xm)),
+                np.where(inside, k / (1.0 - xc) ** 2, slope_max))
+    xc = dr.minimum(x, xm)
+    inside = x <= xm
+    return (dr.select(inside, k * xc / (1.0 - xc), e_max + slope_max * (x - xm)),
+            dr.select(inside, k / dr.square(1.0 - xc), slope_max))
+
+
+def _phase(params, sin_b, cos_b, sin_g, cos_g) -> mi.Float:
+    """f_p at view ray β, light ray γ: Mitsuba's phase function with
+    ω = (sin β, 0, cos β) and wo = (−sin γ, 0, cos γ) (the slice plane, axis
+    along z): ``wo·(−ω) = −cos(β+γ)`` (module doc)."""
+    omega = mi.Vector3f(sin_b, 0.0, cos_b)
+    wo = mi.Vector3f(-sin_g, 0.0, cos_g)
+    # (an isotropic phase returns a literal: broadcast it to the lanes)
+    width = max(dr.width(omega.x), dr.width(wo.x))
+    return mi.Color3f(phase_eval(params, omega, wo)).x + dr.zeros(mi.Float, width)
+
+
+def phase_of_angle(params, s) -> mi.Float:
+    """f_p at the angle θ = π − s between −ω and the direction to the light
+    (s = β + γ), evaluated by Mitsuba's phase function (Dr.Jit)."""
+    sn, cs = dr.sincos(mi.Float(s))
+    return _phase(params, sn, cs, 0.0, 1.0)
+
+
+def phase_of_angle_numpy(params, s) -> np.ndarray:
+    s = np.asarray(s, np.float64)
+    return np.array(phase_of_angle(params, mi.Float(s.ravel().astype(np.float32))),
+                    np.float64).reshape(s.shape)
+
+
+def _isotropic_value(params):
+    """The constant f_p of an isotropic medium, else None."""
+    if params.medium.phase_kind != "isotropic":
+        return None
+    return float(phase_of_angle(params, mi.Float(1.0))[0])
+
+
+#: samples of the phase table used by the SVD's NumPy sample, over s ∈ [0, π]
+PHASE_TABLE = 8193
+
+
+def phase_table(params):
+    """f_p(s) (s = β + γ ∈ [0, 2π]) as a callable for NumPy: exact for an
+    isotropic phase, else linear interpolation in a table of PHASE_TABLE
+    values from Mitsuba over [0, π] (f_p depends on cos s; relative error
+    ~1e-7 for HG g = 0.5; the Nyström sums in Dr.Jit evaluate the phase
+    function itself)."""
+    iso = _isotropic_value(params)
+    if iso is not None:
+        return lambda s: iso
+    n = PHASE_TABLE
+    table = phase_of_angle_numpy(params, np.linspace(0.0, np.pi, n))
+    table = np.append(table, table[-1])
+
+    def f_p(s):
+        u = (np.pi - np.abs(np.pi - np.asarray(s, np.float64))) * ((n - 1) / np.pi)
+        i = np.clip(u.astype(np.int64), 0, n - 1)
+        f = u - i
+        return table[i] * (1.0 - f) + table[i + 1] * f
+    return f_p
+
+
+def local_kernel_numpy(params, sigma_t: float, L: float, x_max: float, f_p=None):
+    """K(γ, β) = e^{-E(x)} f_p(β+γ) in float64 (the SVD's sample);
+    ``f_p``: a :func:`phase_table` (built here if None)."""
+    k = 2.0 * sigma_t * L
+    f_p = f_p or phase_table(params)
+
+    def K(gamma, beta):
+        gamma, beta = np.broadcast_arrays(np.asarray(gamma, np.float64),
+                                          np.asarray(beta, np.float64))
+        E, _ = attenuation_exponent(np.tan(0.5 * beta) * np.tan(0.5 * gamma), x_max, k)
+        return np.exp(-E) * f_p(beta + gamma)
+    return K
+
+
+@dataclass(eq=False)
+class Angles:
+    """``tan(a/2)``, ``sin a``, ``cos a`` of angles a (β or γ), computed once
+    so that the Nyström loops need no trigonometry."""
+    tan_half: mi.Float
+    sin: mi.Float
+    cos: mi.Float
+
+    @staticmethod
+    def of(a) -> "Angles":
+        a = mi.Float(a)
+        sn, cs = dr.sincos(a)
+        return Angles(dr.tan(0.5 * a), sn, cs)
+
+    @staticmethod
+    def from_tan_half(t) -> "Angles":
+        t = mi.Float(t)
+        inv = dr.rcp(1.0 + t * t)
+        return Angles(t, 2.0 * t * inv, (1.0 - t * t) * inv)
+
+    def gather(self, k) -> "Angles":
+        return Angles(*(dr.gather(mi.Float, v, k) for v in (self.tan_half, self.sin, self.cos)))
+
+
+def _exponential_moments(u):
+    """(φ1, φ2, μ) of e^{-u v} on v ∈ [0, 1]: φ1 = ∫e^{-uv} = (1 − e^{-u})/u,
+    φ2 = ∫v e^{-uv} = (1 − (1+u) e^{-u})/u², and the centroid μ = φ2/φ1
+    (1, ½, ½ at u = 0), sharing one exp."""
+    small = u < 1e-2
+    us = dr.select(small, 1.0, u)
+    e = dr.exp(-us)
+    phi1 = dr.select(small, 1.0 - u * (0.5 - u * (1.0 / 6.0)), (1.0 - e) / us)
+    phi2 = dr.select(small, 0.5 - u * (1.0 / 3.0 - u * 0.125), (1.0 - (1.0 + us) * e) / (us * us))
+    mu = dr.select(small, 0.5 - u * (1.0 / 12.0), dr.rcp(us) - e / (1.0 - e))
+    return phi1, phi2, mu
+
+
+@dataclass(eq=False)
+class LocalKernel:
+    """K(γ, β) = e^{-E(x)} f_p(β+γ) of one colour channel, in Dr.Jit
+    (module doc); ``k = 2σt L``."""
+    params: object
+    k: float
+    x_max: float
+    isotropic: float | None
+
+    @staticmethod
+    def of(params, sigma_t: float, L: float, x_max: float) -> "LocalKernel":
+        return LocalKernel(params, 2.0 * sigma_t * L, x_max, _isotropic_value(params))
+
+    def _phase(self, b: Angles, sin_g, cos_g):
+        if self.isotropic is not None:
+            return self.isotropic
+        return _phase(self.params, b.sin, b.cos, sin_g, cos_g)
+
+    def value(self, b: Angles, g: Angles) -> mi.Float:
+        E, _ = attenuation_exponent(b.tan_half * g.tan_half, self.x_max, self.k)
+        return dr.exp(-E) * self._phase(b, g.sin, g.cos)
+
+    def _exponent(self, b: Angles, tg):
+        """(E, ∂E/∂γ) at tan(γ/2) = tg."""
+        E, dE = attenuation_exponent(b.tan_half * tg, self.x_max, self.k)
+        return E, dE * b.tan_half * (0.5 * (1.0 + tg * tg))
+
+    def _sub_mean(self, b: Angles, g: Angles, g_end: Angles, h):
+        """Mean of K over one sub-interval ``[γ, γ_end]`` of width h, in the
+        variable E with dγ/dE = 1/c linear in E between its ends,
+        normalised so that it integrates to h:
+
+            mean = e^{-E(γ)} [ρ₀ φ1(ΔE) + (ρ₁ − ρ₀) φ2(ΔE)] / ((ρ₀ + ρ₁)/2),
+
+        ρ = ΔE/(c h) at each end (:func:`_exponential_moments`); the phase
+        at the e^{-E}-weighted centroid (secant rate)."""
+        E0, c0 = self._exponent(b, g.tan_half)
+        E1, c1 = self._exponent(b, g_end.tan_half)
+        a0, a1 = c0 * h, c1 * h
+        dE = dr.maximum(E1 - E0, 0.0)
+        phi1, phi2, mu = _exponential_moments(dE)
+        flat = dr.maximum(a0, a1) < 1e-3            # E ≈ const: ΔE is mostly rounding
+        rho0 = dE / dr.maximum(a0, 1e-30)
+        rho1 = dE / dr.maximum(a1, 1e-30)
+        bent = (rho0 * phi1 + (rho1 - rho0) * phi2) / dr.maximum(0.5 * (rho0 + rho1), 1e-30)
+        value = dr.exp(-E0) * dr.select(flat, 1.0 - 0.25 * (a0 + a1), bent)
+        if self.isotropic is not None:
+            return value * self.isotropic
+        s = dr.select(flat, 0.5, mu) * h             # ≤ h/2: sin, cos by their series
+        s2 = s * s
+        sin_s = s * (1.0 - s2 * (1.0 / 6.0) * (1.0 - s2 * (1.0 / 20.0)))
+        cos_s = 1.0 - 0.5 * s2 * (1.0 - s2 * (1.0 / 12.0))
+        return value * self._phase(b, g.sin * cos_s + g.cos * sin_s,
+                                   g.cos * cos_s - g.sin * sin_s)
+
+    def cell_mean(self, b: Angles, bounds: list, delta_gamma) -> mi.Float:
+        """Mean of K over a light ray's interval of width Δγ, split at
+        ``bounds`` (the angles of its CELL_SPLIT + 1 equally spaced points)
+        into sub-intervals integrated by :meth:`_sub_mean`: exact for a pure
+        exponential (K near the eye) and within ~0.3 % where E bends within
+        the interval (toward the anti-epipole, thick media)."""
+        h = delta_gamma * (1.0 / (len(bounds) - 1))
+        total = 0.0
+        for g, g_end in zip(bounds[:-1], bounds[1:]):
+            total += self._sub_mean(b, g, g_end, h)
+        return total * (1.0 / (len(bounds) - 1))
+
+
+#: sub-intervals of a light ray's interval in :meth:`LocalKernel.cell_mean`
+CELL_SPLIT = 8
+
+
+def interval_bounds(gamma, delta_gamma) -> list:
+    """Angles of the CELL_SPLIT + 1 points splitting ``[γ, γ + Δγ]``."""
+    gamma = mi.Float(gamma)
+    return [Angles.of(gamma + delta_gamma * (i / CELL_SPLIT)) for i in range(CELL_SPLIT + 1)]
+
+
+def local_kernel(params, sigma_t: float, L: float, x_max: float, tan_half_beta, gamma,
+                 delta_gamma=None) -> mi.Float:
+    """K(γ, β) in Dr.Jit at ``tan(β/2)`` and γ; with ``delta_gamma``: its
+    mean over ``[γ, γ + Δγ]`` (:meth:`LocalKernel.cell_mean`)."""
+    kern = LocalKernel.of(params, sigma_t, L, x_max)
+    b = Angles.from_tan_half(tan_half_beta)
+    g = Angles.of(gamma)
+    if delta_gamma is None:
+        return kern.value(b, g)
+    return kern.cell_mean(b, interval_bounds(gamma, delta_gamma), mi.Float(delta_gamma))
+
+
+def _log1p_grid(c: float, lo: float, hi: float, samples: int = SAMPLES):
+    """``samples`` points uniform in v = log(1 + c (y − lo)) over [lo, hi]
+    and the grid's quadrature weight dy/dv·Δv as a function of y."""
+    v = np.linspace(0.0, math.log1p(c * (hi - lo)), samples)
+
+    def weight(y):
+        return (1.0 + c * (np.asarray(y) - lo)) / c * (v[1] - v[0])
+    return lo + np.expm1(v) / c, weight
+
+
+def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma_lo: float,
+                           gamma_hi: float, beta_lo: float, beta_hi: float, rank: int,
+                           tol: float):
+    """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over [γ_lo, γ_hi] × [β_lo, β_hi],
+    as :func:`integrators.epipolar_tree.separate_channel` does for the
+    directional kernel: M_jk = √w_j K(γ_j, β_k) s_k (s_k normalises each view
+    ray's ∫K dγ, by the grid's quadrature), grids uniform in
+    log(1 + c (γ − γ_lo)), c = σt L tan(β_hi/2) (K's steepest initial decay),
+    and in log(1 + σt L Γ tan(β/2)); Nyström weights
+
+        a_i(γ) = Σ_k K(γ, β_k) WA_ki,   b_i(β) = Σ_j K(γ_j, β) WB_ji.
+
+    Returns ``(γ grid, tan(β grid / 2), WA, WB)``."""
+    G = max(gamma_hi - gamma_lo, 1e-30)
+    if not beta_hi > beta_lo:
+        beta_lo, beta_hi = beta_lo - 1e-4, beta_hi + 1e-4
+    x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
+    c = max(sigma_t * L * x_hi, 1e-6 / G)
+    gamma_grid, weight = _log1p_grid(c, gamma_lo, gamma_hi)
+    w_gamma = weight(gamma_grid)
+    cb = max(sigma_t * L * G, 1e-6)
+    x_grid, _ = _log1p_grid(cb, x_lo, x_hi)
+    beta_grid = 2.0 * np.arctan(x_grid)
+    K = local_kernel_numpy(params, sigma_t, L, x_max)
+
+    def scale(beta):
+        b = np.asarray(beta, np.float64)
+        integral = w_gamma @ K(gamma_grid[:, None], b.ravel()[None, :])
+        return (1.0 / np.maximum(integral, 1e-300)).reshape(b.shape)
+
+    def I_w(gamma, beta):
+        return np.sqrt(weight(gamma)) * K(gamma, beta) * scale(beta)
+
+    gamma = np.concatenate([gamma_grid, np.linspace(gamma_lo, gamma_hi, CHECK_POINTS)])
+    beta = np.concatenate([beta_grid, np.linspace(beta_lo, beta_hi, CHECK_POINTS)])
+    sep = separate_integrand(I_w, gamma, beta, N=rank or None, tol=tol,
+                             grid=(gamma_grid, beta_grid), max_N=MAX_RANK)
+    U, VS, sigma = sep.A[:SAMPLES], sep.B[:SAMPLES], sep.singular_values[:sep.N]
+    WA = VS * scale(beta_grid)[:, None] / sigma ** 2
+    WB = np.sqrt(w_gamma)[:, None] * U
+    return gamma_grid, x_grid, WA, WB
+
+
+def nystrom_sums(n_lanes: int, weights: np.ndarray, term):
+    """Σ_k term(k) · weights[k, i] per lane, for each column i, in one
+    Dr.Jit loop; ``term(k)`` gives the lanes' kernel values at grid point k."""
+    K, N = weights.shape
+    W = [mi.Float(np.ascontiguousarray(weights[:, i], np.float32)) for i in range(N)]
+    n_k = dr.opaque(mi.UInt32, K)
+
+    def body(k, acc):
+        e = term(k)
+        return k + 1, tuple(a + e * dr.gather(mi.Float, w, k) for a, w in zip(acc, W))
+
+    _, acc = dr.while_loop(state=(mi.UInt32(0), tuple(dr.zeros(mi.Float, n_lanes)
+                                                      for _ in range(N))),
+                           cond=lambda k, acc: k < n_k, body=body)
+    return list(acc)
+
+
+def query_x_max(queries: EpipolarQueries) -> float:
+    """Largest x = tan(β/2) tan(γ_end/2) of the queries' end points (< 1)."""
+    x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
+    return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
+
+
+def local_separated_kernel(params, queries: EpipolarQueries, rays: LocalLightRays,
+                           rank: int, tol: float):
+    """A (n, d, C, N): the mean of a_i over every light ray's interval, and
+    B (n, r, C, N) at the queries' own β (padded slots: 0); C = 1 for grey σt.
+    A is evaluated once per cell of the light rays' lattice and gathered
+    into the rows (leaf g of row s = cell m_s + g)."""
+    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+    channels = [0] if gray(sigma_t) else [0, 1, 2]
+    L = float(queries.frame.light_distance)
+    x_max = query_x_max(queries)
+    delta = float(rays.delta_gamma[0])
+    M = rays.lattice_size
+    gamma_lo = float(dr.min(rays.gamma_lo)[0])
+    gamma_hi = float(dr.max(rays.gamma_max)[0])
+    beta_lo, beta_hi = float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
+    seps = [separate_local_channel(params, float(sigma_t[c]), L, x_max, gamma_lo, gamma_hi,
+                                   beta_lo, beta_hi, rank, tol) for c in channels]
+    N = max(s[2].shape[1] for s in seps)
+    C = len(channels)
+    bounds = interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta)
+    b_queries = Angles.of(queries.beta)
+    A_cells = dr.zeros(mi.Float, M * C * N)
+    B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
+    lane_a = dr.arange(mi.UInt32, M) * (C * N)
+    lane_b = queries.slot * (C * N)
+    for c, (ch, (g_grid, x_grid, WA, WB)) in enumerate(zip(channels, seps)):
+        kern = LocalKernel.of(params, float(sigma_t[ch]), L, x_max)
+        b_grid = Angles.from_tan_half(mi.Float(np.asarray(x_grid, np.float32)))
+        g_grid = Angles.of(mi.Float(g_grid))
+        a_terms = nystrom_sums(M, WA, lambda k: kern.cell_mean(b_grid.gather(k), bounds, delta))
+        b_terms = nystrom_sums(dr.width(b_queries.sin), WB,
+                               lambda k: kern.value(b_queries, g_grid.gather(k)))
+        for i in range(WA.shape[1]):
+            dr.scatter(A_cells, a_terms[i], lane_a + c * N + i)
+            dr.scatter(B, b_terms[i], lane_b + c * N + i)
+    # rows: A[s, g, :] = A_cells[m_s + g, :]
+    j = dr.arange(mi.UInt32, queries.n * rays.d * C * N)
+    per_ray = j // (C * N)
+    s_row, g = per_ray // rays.d, per_ray % rays.d
+    cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, M - 1)
+    A = dr.gather(mi.Float, A_cells, cell * (C * N) + j % (C * N))
+    return (mi.TensorXf(A, shape=(queries.n, rays.d, C, N)),
+            mi.TensorXf(B, shape=(queries.n, queries.r, C, N)))
+
+
+# --------------------------------------------------------------------------
+# Per-query terms
+# --------------------------------------------------------------------------
+
+def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
+    """∫ over [0, t_near] (pinhole -> camera ray origin) of the unshadowed
+    integrand σs f_p I/r² e^{-σt τ} e^{-σt t} dt: one midpoint sample of the
+    light term times the exact camera-side integral (t_near ≪ L)."""
+    sigma_t = color(params.medium.sigma_t)
+    omega = dr.gather(mi.Vector3f, cap.omega, queries.sample)
+    x = mi.Point3f(point(params.camera.origin)) + omega * (0.5 * queries.t_near)
+    wo, dist, E = sample_light(params, x)
+    tau, _, _ = segment_box(params, x, wo, dist)
+    f_p = phase_eval(params, omega, wo, x)
+    return (color(params.medium.sigma_s) * f_p * E * dr.exp(-sigma_t * tau)
+            * segment_weight(sigma_t, 0.0, queries.t_near))
+
+
+def local_query_terms(params, cap, queries: EpipolarQueries, rays: LocalLightRays, colour,
+                      V_near=1.0) -> QueryTerms:
+    """Per-query factors (module doc) for
+    :func:`~integrators.epipolar_setup.assemble_queries`:
+    ``radiance = e^{σt t_near}``, ``view = σs·colour·Δγ / (L sin β)``,
+    ``near = V_near ·`` :func:`near_segment`."""
+    sigma_t = color(params.medium.sigma_t)
+    L = float(queries.frame.light_distance)
+    dg = dr.gather(mi.Float, rays.delta_gamma, queries.row)
+    view = color(params.medium.sigma_s) * colour * (dg / (L * dr.sin(queries.beta)))
+    near = V_near * near_segment(params, cap, queries)
+    return QueryTerms(dr.exp(sigma_t * queries.t_near), view, near)
