@@ -232,14 +232,8 @@ def light_intensity(params, frame, w) -> mi.Color3f:
 
 
 def projects_texture(params) -> bool:
-    """Whether the light is a spot light with a projected ``texture``.
-    (Mitsuba's spot light lists a uniform ``texture.value`` = 1 when it has
-    none -- spatially constant textures are refused -- so only other
-    ``texture.*`` parameters mean a texture.)"""
-    if params.light.kind != "spot":
-        return False
-    keys = mi.traverse(params.light.emitter).keys()
-    return any(k.startswith("texture.") and k != "texture.value" for k in keys)
+    """Whether the light is a spot light with a projected ``texture``."""
+    return params.light.kind == "spot" and params.light.textured
 
 
 def _channels(params) -> int:

@@ -104,7 +104,7 @@ from .capture import CameraCapture
 from .light_transport import (BOX_EPS, _slabs, color, phase_eval, point, sample_light,
                               segment_box, segment_weight)
 from .partial_sum_tree import BlockerModes
-from .raymarch import march
+from .raymarch import auto_spacing, march
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5
@@ -623,7 +623,8 @@ def subset_capture(cap: CameraCapture, idx: mi.UInt32) -> CameraCapture:
 def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int) -> mi.Color3f:
     """Brute-force L_scat of the ring samples (§6): raymarch with exact,
     ray-traced visibility."""
-    return march(params, subset_capture(cap, queries.ring_sample), steps, shadow_map=None)
+    return march(params, subset_capture(cap, queries.ring_sample), steps, shadow_map=None,
+                 spacing=auto_spacing(params))
 
 
 def to_samples(queries: EpipolarQueries, parts) -> mi.Color3f:

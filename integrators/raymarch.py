@@ -52,11 +52,14 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         if self.visibility == "shadowmap":
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        spacing = self.spacing
-        if spacing == "auto":
-            spacing = "uniform" if params.light.kind == "directional" else "equiangular"
+        spacing = auto_spacing(params) if self.spacing == "auto" else self.spacing
         return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed,
                      spacing)
+
+
+def auto_spacing(params) -> str:
+    """Equiangular segments for point/spot lights, uniform for directional."""
+    return "uniform" if params.light.kind == "directional" else "equiangular"
 
 
 def step_boundaries(params, cap, steps, spacing):

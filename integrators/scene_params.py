@@ -276,7 +276,9 @@ def read_light(scene) -> LightParams:
         beam = float(np.array(params["beam_width"]).reshape(-1)[0])
         if not (np.isfinite(cutoff) and 0 < cutoff <= 90):
             raise ValueError(f"Emitter {_name(em)}: cutoff_angle {cutoff} must be in (0, 90] degrees.")
-        textured = any(k.startswith("texture") for k in params.keys())
+        # Mitsuba lists a uniform ``texture.value`` for a spot light without
+        # a texture; only other ``texture.*`` parameters mean a projected one
+        textured = any(k.startswith("texture.") and k != "texture.value" for k in params.keys())
         light = LightParams(kind=kind, radiance=radiance, position=to_world[:3, 3].copy(),
                             spot_axis=axis / np.linalg.norm(axis), cutoff_angle=cutoff,
                             beam_width=beam, textured=textured, emitter=em)

@@ -33,6 +33,10 @@ def test_reads_local_lights(light):
         assert p.light.textured and p.light.cutoff_angle == pytest.approx(35)
 
 
+def test_plain_spot_is_not_textured():
+    assert not params_of(light="spot").light.textured
+
+
 @pytest.mark.parametrize("phase,kind", [
     ({"type": "hg", "g": 0.5}, "hg"), ({"type": "rayleigh"}, "rayleigh"),
     ({"type": "blendphase", "weight": 0.3, "phase1": {"type": "hg", "g": -0.5},
