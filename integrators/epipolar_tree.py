@@ -19,19 +19,18 @@ from .epipolar_local_light import (CHECK_POINTS, MAX_RANK,  # shared with the lo
                                    light_ray_factor, local_light_ray_grid, local_query_terms,
                                    local_separated_kernel, shadow_map_local_blocker_angles,
                                    trace_local_blocker_angles)
-from .epipolar_setup import (assemble_queries, assign_queries, blocker_modes,
-                             choose_slices, directional_query_terms, epipolar_frame_of,
-                             first_leaf_visibility,
-                             gather_queries, gray, light_ray_grid, light_side_factor,
-                             march_ring, rectified_depth,
-                             shadow_map_blocker_angles, to_samples, trace_blocker_angles)
+from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_terms,
+                             first_leaf_visibility, gather_queries, gray, light_ray_grid,
+                             light_side_factor, rectified_depth, shadow_map_blocker_angles,
+                             trace_blocker_angles)
 from .integrand_svd import SAMPLES, separate_integrand
 from .partial_sum_tree import integrate_slices
-from .template import EpiscatterIntegrator, read_choice, read_number
+from .epipolar_template import EpipolarIntegrator
+from .template import read_choice, read_number
 
 
 
-class EpipolarTreeIntegrator(EpiscatterIntegrator):
+class EpipolarTreeIntegrator(EpipolarIntegrator):
     r"""Hierarchical volumetric shadows (``epipolar_tree``).
 
     Single scattering with volumetric shadows of a directional, point or
@@ -129,39 +128,16 @@ class EpipolarTreeIntegrator(EpiscatterIntegrator):
     Fenwick: A new data structure for cumulative frequency tables, 1994.
     """
 
-    def read_properties(self, props):
-        self.slices = read_number(props, "slices", 0, minimum=0, maximum=1 << 20, integer=True)
-        self.light_rays = read_number(props, "light_rays", 0, minimum=0, maximum=32767,
-                                      integer=True)
-        self.svd_rank = read_number(props, "svd_rank", 0, minimum=0, maximum=SAMPLES,
-                                    integer=True)
-        self.svd_tolerance = read_number(props, "svd_tolerance", 1e-3, minimum=1e-12,
-                                         maximum=1.0)
-        self.ring_degrees = read_number(props, "ring_degrees", 2.0, minimum=0.0, maximum=90.0)
-        self.ring_steps = read_number(props, "ring_steps", 256, minimum=1, integer=True)
+    def read_method_properties(self, props):
         self.prefilter = read_number(props, "prefilter", 4, minimum=1, maximum=16, integer=True)
         self.rectification = read_choice(props, "rectification", "traced",
                                          ("traced", "resampled"))
-        self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
-                                                minimum=1, maximum=32768, integer=True)
 
     # -- the method ---------------------------------------------------------------
-    def scattering(self, params, cap):
-        with self.stage("rectify"):
-            frame = epipolar_frame_of(params)
-            slices = choose_slices(frame, self.slices)
-            queries = assign_queries(params, frame, slices, cap, self.ring_degrees)
-        parts = []
-        if queries.n:
-            sweep = (self.sweep_queries if params.light.kind == "directional"
-                     else self.sweep_local_queries)
-            parts.append((queries.sample, sweep(params, cap, queries)))
-        with self.stage("ring") as keep:
-            if dr.width(queries.ring_sample):
-                parts.append((queries.ring_sample,
-                              march_ring(params, cap, queries, self.ring_steps)))
-                keep.append(parts[-1][1])
-        return to_samples(queries, parts)
+    def integrate_queries(self, params, cap, queries):
+        sweep = (self.sweep_queries if params.light.kind == "directional"
+                 else self.sweep_local_queries)
+        return sweep(params, cap, queries)
 
     def sweep_queries(self, params, cap, queries):
         """L_scat of every query (§3-§7)."""

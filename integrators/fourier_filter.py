@@ -17,32 +17,24 @@ import mitsuba as mi
 import numpy as np
 
 from .capture import capture_shadow_map
-from .epipolar_setup import (LightRays, assemble_queries, assign_queries, auto_light_rays,
-                             choose_slices, directional_query_terms, epipolar_frame_of, gray,
-                             light_ray_grid, light_side_factor, march_ring,
-                             shadow_map_blocker_angles, to_samples, trace_blocker_angles)
+from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
+                             directional_query_terms, gray, light_ray_grid, light_side_factor,
+                             shadow_map_blocker_angles, trace_blocker_angles)
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             prefilter_rows, query_beta_range, rectified_shadow_map,
                             reference_angle, series_sum, series_visibility,
                             shadowed_sum)
-from .integrand_svd import SAMPLES
-from .template import EpiscatterIntegrator, read_choice, read_number
+from .epipolar_template import EpipolarIntegrator
+from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
 RECTIFICATIONS = ("auto", "epipolar", "projective")
 BLOCKERS = ("traced", "resampled")
 
 
-def read_bool(props, name: str, default: bool) -> bool:
-    value = props.get(name, default)
-    if not isinstance(value, bool):
-        raise ValueError(f"Property '{name}' = {value!r} must be a boolean.")
-    return value
-
-
-class FourierFilterIntegrator(EpiscatterIntegrator):
+class FourierFilterIntegrator(EpipolarIntegrator):
     r"""Filter-based single scattering (``fourier_filter``).
 
     Single scattering with volumetric shadows of a directional light in the
@@ -146,7 +138,7 @@ class FourierFilterIntegrator(EpiscatterIntegrator):
     Shadow Algorithm for Single Scattering, ACM TOG 29(6), 2010.
     """
 
-    def read_properties(self, props):
+    def read_method_properties(self, props):
         M = read_number(props, "coefficients", 32, minimum=2, maximum=1024, integer=True)
         if M % 2:
             raise ValueError(f"Property 'coefficients' = {M} must be even (sines and "
@@ -159,46 +151,22 @@ class FourierFilterIntegrator(EpiscatterIntegrator):
         self.fit_depth = read_bool(props, "fit_depth", False)
         self.exact_bounds = read_bool(props, "exact_bounds", True)
         self.depth_range = read_choice(props, "depth_range", "slice", DEPTH_RANGES)
-        self.slices = read_number(props, "slices", 0, minimum=0, maximum=1 << 20, integer=True)
-        self.light_rays = read_number(props, "light_rays", 0, minimum=0, maximum=32767,
-                                      integer=True)
-        self.ring_degrees = read_number(props, "ring_degrees", 2.0, minimum=0.0, maximum=90.0)
-        self.ring_steps = read_number(props, "ring_steps", 256, minimum=1, integer=True)
-        self.svd_rank = read_number(props, "svd_rank", 0, minimum=0, maximum=SAMPLES,
-                                    integer=True)
-        self.svd_tolerance = read_number(props, "svd_tolerance", 1e-3, minimum=1e-12,
-                                         maximum=1.0)
         self.rectification = read_choice(props, "rectification", "auto", RECTIFICATIONS)
         if self.rectification == "projective":
             raise ValueError("Property 'rectification' = 'projective': Klehm's projective "
                              "rectification (§4.2) is not implemented yet in fourier_filter; "
                              "use 'epipolar' or 'auto'.")
         self.blockers = read_choice(props, "blockers", "traced", BLOCKERS)
-        self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
-                                                minimum=1, maximum=32768, integer=True)
 
     @property
     def filter_settings(self) -> FilterSettings:
         return FilterSettings(self.M, self.regions, self.fit_depth, self.exact_bounds)
 
     # -- the method ---------------------------------------------------------------
-    def scattering(self, params, cap):
+    def check_light(self, params):
         require_directional_light(params)
-        with self.stage("rectify"):
-            frame = epipolar_frame_of(params)
-            slices = choose_slices(frame, self.slices)
-            queries = assign_queries(params, frame, slices, cap, self.ring_degrees)
-        parts = []
-        if queries.n:
-            parts.append((queries.sample, self.filter_queries(params, cap, queries)))
-        with self.stage("ring") as keep:
-            if dr.width(queries.ring_sample):
-                parts.append((queries.ring_sample,
-                              march_ring(params, cap, queries, self.ring_steps)))
-                keep.append(parts[-1][1])
-        return to_samples(queries, parts)
 
-    def filter_queries(self, params, cap, queries):
+    def integrate_queries(self, params, cap, queries):
         """L_scat of every query (§3, Listing 4)."""
         rect = self.rectified_sums(params, cap, queries)
         with self.stage("unrectify") as keep:

@@ -55,6 +55,13 @@ def read_number(props, name, default, minimum=None, maximum=None, integer=False)
     return int(value) if integer else float(value)
 
 
+def read_bool(props, name: str, default: bool) -> bool:
+    value = props.get(name, default)
+    if not isinstance(value, bool):
+        raise ValueError(f"Property '{name}' = {value!r} must be a boolean.")
+    return value
+
+
 def pixel_average(values, pixel, n_pixels, spp):
     """Box filter: mean of each pixel's ``spp`` consecutive samples."""
     if spp == 1:

@@ -1,0 +1,62 @@
+"""The render skeleton both epipolar methods share (DESIGN §3).
+
+:class:`EpipolarIntegrator` reads the properties common to ``epipolar_tree``
+and ``fourier_filter`` (slices, light rays, SVD rank, epipole ring, shadow
+map resolution) and implements :meth:`scattering`: rectify (every camera
+sample becomes a query of its nearest slice, Baran §3/§8), let the method
+answer the queries (:meth:`integrate_queries`), march the epipole ring by
+brute force (Baran §6), and scatter both back to the camera samples.
+"""
+from __future__ import annotations
+
+import drjit as dr
+
+from .epipolar_setup import (assign_queries, choose_slices, epipolar_frame_of, march_ring,
+                             to_samples)
+from .integrand_svd import SAMPLES
+from .template import EpiscatterIntegrator, read_number
+
+
+class EpipolarIntegrator(EpiscatterIntegrator):
+    """Base of the epipolar methods; subclasses implement
+    :meth:`integrate_queries` (and may refuse lights in :meth:`check_light`)."""
+
+    def read_properties(self, props):
+        self.slices = read_number(props, "slices", 0, minimum=0, maximum=1 << 20, integer=True)
+        self.light_rays = read_number(props, "light_rays", 0, minimum=0, maximum=32767,
+                                      integer=True)
+        self.svd_rank = read_number(props, "svd_rank", 0, minimum=0, maximum=SAMPLES,
+                                    integer=True)
+        self.svd_tolerance = read_number(props, "svd_tolerance", 1e-3, minimum=1e-12,
+                                         maximum=1.0)
+        self.ring_degrees = read_number(props, "ring_degrees", 2.0, minimum=0.0, maximum=90.0)
+        self.ring_steps = read_number(props, "ring_steps", 256, minimum=1, integer=True)
+        self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
+                                                minimum=1, maximum=32768, integer=True)
+        self.read_method_properties(props)
+
+    def read_method_properties(self, props) -> None:
+        """Read the method's own properties (hook)."""
+
+    def check_light(self, params) -> None:
+        """Raise ValueError for lights the method does not support (hook)."""
+
+    def integrate_queries(self, params, cap, queries):
+        """L_scat of every (non-ring) query (hook)."""
+        raise NotImplementedError
+
+    def scattering(self, params, cap):
+        self.check_light(params)
+        with self.stage("rectify"):
+            frame = epipolar_frame_of(params)
+            slices = choose_slices(frame, self.slices)
+            queries = assign_queries(params, frame, slices, cap, self.ring_degrees)
+        parts = []
+        if queries.n:
+            parts.append((queries.sample, self.integrate_queries(params, cap, queries)))
+        with self.stage("ring") as keep:
+            if dr.width(queries.ring_sample):
+                parts.append((queries.ring_sample,
+                              march_ring(params, cap, queries, self.ring_steps)))
+                keep.append(parts[-1][1])
+        return to_samples(queries, parts)
