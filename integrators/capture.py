@@ -41,7 +41,10 @@ def first_surface(scene, ray, active=True):
         passing = active & si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
         if not dr.any(passing):
             break
-        nxt = si.spawn_ray(ray.d)
+        # continue along the ray itself (spawn_ray would offset the origin
+        # along the surface normal, shifting the ray sideways by ~mm)
+        off = 16 * mi.math.RayEpsilon * (1 + dr.max(dr.abs(si.p)))
+        nxt = mi.Ray3f(si.p + ray.d * off, ray.d)
         si2 = scene.ray_intersect(nxt, passing)
         si = dr.select(passing, si2, si)
         ray = dr.select(passing, nxt, ray)

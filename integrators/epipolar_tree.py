@@ -141,10 +141,11 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     def sweep_queries(self, params, cap, queries):
         """L_scat of every query (§3-§7)."""
-        with self.stage("rectify"):
+        with self.stage("rectify") as keep:
             rays = light_ray_grid(params, queries, self.light_rays)
             D = rectified_depth(queries, rays)
             L = light_side_factor(params, queries, rays)
+            keep.extend([D.array, L.array])
         with self.stage("blockers") as keep:
             beta_b = self.blocker_angles(params, cap, queries, rays)
             modes = blocker_modes(queries, rays, beta_b, self.prefilter)
