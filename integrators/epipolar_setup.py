@@ -596,7 +596,11 @@ def directional_query_terms(params, cap: CameraCapture, queries: EpipolarQueries
 def assemble_queries(terms: QueryTerms, integral: mi.Color3f) -> mi.Color3f:
     """L_scat per query from the rectified integral Σ_γ L K V cover."""
     value = terms.radiance * (terms.view * integral - terms.near)
-    return dr.maximum(value, 0.0)
+    # Beyond float32's range (σt·|h_ref| > 88: optical depths of hundreds)
+    # the factor e^{-σt h_ref} overflows while the kernel it multiplies has
+    # underflowed to 0; the product of those queries is lost (returned as 0,
+    # not NaN).  results/stability measures the error this leaves.
+    return dr.select(dr.isfinite(terms.radiance), dr.maximum(value, 0.0), 0.0)
 
 
 def gather_queries(queries: EpipolarQueries, result: mi.TensorXf) -> mi.Color3f:

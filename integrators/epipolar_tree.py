@@ -287,7 +287,11 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
     (the Nyström sums of :func:`separate_channel` in one Dr.Jit loop)."""
     K, N = weights.shape
     tab = mi.Float(np.asarray(table, np.float32))
-    W = [mi.Float(np.ascontiguousarray(weights[:, i], np.float32)) for i in range(N)]
+    # float32 range: in extreme optical depths (σt·γ_max ≳ 80) some Nyström
+    # weights exceed it; their kernel factor e^{-σt x t} has underflowed to
+    # 0 there, and an inf weight would turn 0 into NaN
+    finite = np.clip(np.nan_to_num(weights, nan=0.0), -1e30, 1e30)
+    W = [mi.Float(np.ascontiguousarray(finite[:, i], np.float32)) for i in range(N)]
     st = dr.opaque(mi.Float, float(sigma_t))
     n_k = dr.opaque(mi.UInt32, K)
 
