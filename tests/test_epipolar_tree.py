@@ -8,6 +8,7 @@ from episcatter.metrics import relmse
 from integrators.epipolar_setup import epipolar_frame_of
 from integrators.scene_params import SceneParams
 from tests.conftest import scene_dict
+from tests.oracles import unshadowed_directional
 
 RES = (32, 24)
 LOOK_UP = {"origin": [0, 0.5, 3], "target": [0, 1.5, 0], "up": [0, 1, 0]}
@@ -125,25 +126,7 @@ def test_unshadowed_medium_matches_the_closed_form(sigma_t):
     scene = mi.load_dict(d)
     p = SceneParams.from_scene(scene)
     out, _ = render(scene, "epipolar_tree", slices=400, light_rays=512, svd_tolerance=1e-6)
-    cam, med = p.camera, p.medium
-    ys, xs = np.mgrid[0:res[1], 0:res[0]] + 0.5
-    omega = cam.direction(xs.ravel(), ys.ravel())
-    omega /= np.linalg.norm(omega, axis=1, keepdims=True)
-    o = cam.origin + omega * (cam.near_clip / (omega @ cam.forward))[:, None]
-
-    def box_exit(p0, w):
-        with np.errstate(divide="ignore"):
-            t0, t1 = (med.bounds_min - p0) / w, (med.bounds_max - p0) / w
-        return np.min(np.maximum(t0, t1), axis=-1)
-
-    expected = []
-    for oi, wi in zip(o, omega):
-        d_exit = box_exit(oi, wi)
-        t = (np.arange(100000) + 0.5) / 100000 * d_exit
-        tau = box_exit(oi + t[:, None] * wi, np.broadcast_to(p.light.direction, (t.size, 3)))
-        f = np.exp(-med.sigma_t[None] * (t + tau)[:, None])
-        expected.append(f.mean(0) * d_exit * med.sigma_s / (4 * np.pi) * 2.0)
-    expected = np.array(expected).reshape(res[1], res[0], 3)
+    expected = unshadowed_directional(p, res)
     np.testing.assert_allclose(out, expected, rtol=2e-3)
 
 

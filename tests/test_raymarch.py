@@ -5,6 +5,7 @@ import pytest
 
 from episcatter.metrics import relmse
 from tests.conftest import scene_dict
+from tests.oracles import unshadowed_directional
 
 
 def render(scene, **props):
@@ -21,30 +22,7 @@ def test_unshadowed_homogeneous_slab_closed_form():
     from integrators.scene_params import SceneParams
     p = SceneParams.from_scene(scene)
     out = render(scene, visibility="exact", steps=4096, output="scattering")["scattering"]
-    # closed form for every pixel centre
-    cam, med, light = p.camera, p.medium, p.light
-    w_l = light.direction
-    ys, xs = np.mgrid[0:6, 0:8] + 0.5
-    omega = cam.direction(xs.ravel(), ys.ravel())
-    omega /= np.linalg.norm(omega, axis=1, keepdims=True)
-    o = cam.origin + omega * (cam.near_clip / (omega @ cam.forward))[:, None]
-
-    def box_exit(p0, w):
-        with np.errstate(divide="ignore"):
-            t0 = (med.bounds_min - p0) / w
-            t1 = (med.bounds_max - p0) / w
-        return np.min(np.maximum(t0, t1), axis=-1)
-
-    st = med.sigma_t[0]
-    expected = []
-    for oi, wi in zip(o, omega):
-        d_exit = box_exit(oi, wi)
-        t = (np.arange(200000) + 0.5) / 200000 * d_exit
-        x = oi + t[:, None] * wi
-        tau = box_exit(x, np.broadcast_to(w_l, x.shape))
-        f = np.exp(-st * t) * np.exp(-st * tau)
-        expected.append(f.mean() * d_exit * med.sigma_s[0] / (4 * np.pi) * 2.0)
-    expected = np.array(expected).reshape(6, 8)
+    expected = unshadowed_directional(p, (8, 6), samples=200000)[..., 0]
     np.testing.assert_allclose(out[..., 0], expected, rtol=2e-3)
 
 
