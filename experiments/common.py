@@ -1,0 +1,404 @@
+"""Helpers shared by the experiment scripts (``python -m experiments.<name>``).
+
+- scenes and references: :func:`scene_file`, :func:`exact_reference` (the
+  working reference of DESIGN §2: ``raymarch visibility=exact``, cached by
+  :func:`episcatter.reference.render_reference`);
+- timing (DESIGN §5): :func:`time_renders` / :func:`time_jobs` -- one
+  warm-up render per setting (compile + first run, reported apart), then
+  ``repeats`` timed rounds that visit every setting once each (interleaved,
+  so a change of machine load hits all settings alike), medians of the
+  end-to-end time and of every stage of ``integrator.timings``;
+- errors: :func:`errors` -- :func:`episcatter.metrics.compare` at several
+  block sizes, flattened into ``relmse_b1``, ``flip_b2``, ...;
+- output: :func:`output_dir`, :func:`write_csv`, :func:`write_json`,
+  :func:`write_text`, :func:`markdown_table`, and :func:`base_parser` for
+  the common command-line options.
+
+Every experiment writes ``results/<name>/`` with the settings that made it
+and :func:`environment` (versions, threads, machine load).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import statistics
+import time
+from contextlib import contextmanager, nullcontext
+from pathlib import Path
+
+import numpy as np
+
+from episcatter import bench, metrics
+from episcatter.reference import environment as _base_environment
+from episcatter.reference import render_reference, render_rgb, unwrap_render_error
+from episcatter.scene_loading import load_scene, make_integrator
+
+#: repository root and the folder experiments write into
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "results"
+#: ray-marching segments of the exact working reference
+REFERENCE_STEPS = 2048
+#: block sizes the errors are reported at (matched pixel footprint, DESIGN §2)
+BLOCKS = (1, 2)
+
+
+# --------------------------------------------------------------------------
+# Scenes and references
+# --------------------------------------------------------------------------
+
+def scene_file(name: str) -> str:
+    """Absolute path of a suite scene stem (assets built on first use) or of
+    an XML file given by path."""
+    import scenes
+
+    if name in scenes.ALL_SCENES:
+        return scenes.path(name)
+    if os.path.isfile(name):
+        return os.path.abspath(name)
+    raise ValueError(f"unknown scene {name!r}: a suite stem {scenes.ALL_SCENES} or an XML path")
+
+
+def resolution(width: int, height: int) -> dict:
+    """The suite's ``-D`` defines for an image size."""
+    return {"res_x": int(width), "res_y": int(height)}
+
+
+def exact_reference(scene_path: str, defines: dict, steps: int = REFERENCE_STEPS,
+                    progress: bool = True):
+    """(image, info) of the exact working reference: ``raymarch
+    visibility=exact steps=steps``, one sample per pixel at the pixel centre.
+
+    Rendered (or read from the cache) by :func:`render_reference` with
+    ``spp=2, chunk=1``: its two halves are one non-jittered sample each, so
+    they are identical (zero noise) and sample exactly where every tested
+    method does at 1 spp -- the error is the integration error alone, no
+    antialiasing difference (DESIGN §2)."""
+    return render_reference(scene_path, defines, spp=2, chunk=1, kind="exact",
+                            steps=int(steps), progress=progress)
+
+
+def reference_note(steps: int = REFERENCE_STEPS) -> str:
+    """One sentence saying what the reference is (for tables and JSON)."""
+    return (f"exact working reference: raymarch visibility=exact steps={steps}, "
+            "1 sample per pixel at the pixel centre (same sample positions as the tested "
+            "methods); errors after block x block averaging of both images")
+
+
+# --------------------------------------------------------------------------
+# Timing
+# --------------------------------------------------------------------------
+
+def load_average() -> list[float]:
+    """The 1, 5 and 15 minute load averages (what ``uptime`` prints)."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def _render_once(scene, integrator, spp: int):
+    """(image, wall seconds, stage timings) of one finished render."""
+    t0 = time.perf_counter()
+    img = render_rgb(scene, integrator, spp=spp)
+    seconds = time.perf_counter() - t0
+    return img, seconds, dict(getattr(integrator, "timings", None) or {})
+
+
+def summarize(first_s: float, times: list[float], stage_runs: list[dict]) -> dict:
+    """Medians of the timed runs: ``time_s`` (end-to-end), ``stages``,
+    ``scattering_s`` (the template's scattering stage, camera capture
+    excluded), ``scattering_net_s`` (it minus the method's own sub-stages
+    that build a visibility capture, i.e. raymarch's shadow map, see
+    :func:`capture_substages`; unlike ``episcatter.bench``, which subtracts
+    every sub-stage and would leave epipolar_tree almost nothing)."""
+    stages = bench._median_stages(stage_runs)   # median of each stage in every run
+    scattering = stages.get("scattering", math.nan)
+    return {"first_run_s": first_s, "times_s": times, "time_s": statistics.median(times),
+            "time_min_s": min(times), "time_max_s": max(times), "stages": stages,
+            "scattering_s": scattering,
+            "scattering_net_s": scattering - sum(stages.get(k, 0.0) for k in capture_substages()),
+            "total_s": stages.get("total", statistics.median(times))}
+
+
+def capture_substages() -> tuple[str, ...]:
+    """Sub-stages of ``scattering`` that build a visibility capture which the
+    papers exclude from their times (Baran §10: "do not include the time
+    taken by their construction"): raymarch's ``shadowmap``."""
+    return ("shadowmap",)
+
+
+# --------------------------------------------------------------------------
+# BLAS threads (the tree's SVD runs in NumPy)
+# --------------------------------------------------------------------------
+
+def _openblas():
+    """(get, set) of the OpenBLAS NumPy loaded, via ctypes, or None."""
+    import ctypes
+
+    libs = {line.split()[-1] for line in open("/proc/self/maps")
+            if "openblas" in line.lower() and line.split()[-1].startswith("/")}
+    for path in sorted(libs):
+        lib = ctypes.CDLL(path)
+        for get, put in (("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
+                         ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
+                         ("openblas_get_num_threads", "openblas_set_num_threads")):
+            if hasattr(lib, get) and hasattr(lib, put):
+                return getattr(lib, get), getattr(lib, put)
+    return None
+
+
+def blas_threads() -> int | None:
+    """OpenBLAS's current thread count (None if NumPy does not use OpenBLAS)."""
+    api = _openblas()
+    return int(api[0]()) if api else None
+
+
+@contextmanager
+def limit_blas_threads(n: int):
+    """Run a block with OpenBLAS limited to ``n`` threads, then restore it
+    (a no-op without OpenBLAS).  NumPy's LAPACK is where ``epipolar_tree``
+    takes the SVD of its 64x64 kernel sample (stage ``svd``)."""
+    api = _openblas()
+    if api is None:
+        yield
+        return
+    before = int(api[0]())
+    api[1](int(n))
+    try:
+        yield
+    finally:
+        api[1](before)
+
+
+def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
+                 progress: bool = False, contexts: dict | None = None) -> dict:
+    """Warm-up + ``repeats`` interleaved timed renders of each integrator on
+    one scene: :func:`time_jobs` with ``{label: (scene, integrator)}``."""
+    return time_jobs({label: (scene, integ) for label, integ in integrators.items()},
+                     repeats, spp, progress, contexts)
+
+
+def time_jobs(jobs: dict, repeats: int = 3, spp: int = 0, progress: bool = False,
+              contexts: dict | None = None) -> dict:
+    """Warm-up + ``repeats`` interleaved timed renders of each job.
+
+    ``jobs`` maps a label to ``(scene, integrator)``.  Returns, per label,
+    :func:`summarize` plus ``image`` (the last render) or, if rendering
+    failed, ``{"error": message}``.  Rounds are interleaved (job A, B, C, A,
+    B, C, ...) so load changes on a shared machine hit every job alike.
+    ``contexts`` maps labels to a callable returning a context manager that
+    wraps each of that job's renders (e.g. ``lambda:
+    limit_blas_threads(1)``)."""
+    from tqdm.auto import tqdm
+
+    if int(repeats) < 1:
+        raise ValueError(f"repeats = {repeats} must be >= 1")
+    contexts = contexts or {}
+
+    def once(label):
+        scene, integrator = jobs[label]
+        with contexts.get(label, nullcontext)():
+            return _render_once(scene, integrator, spp)
+
+    state = {}
+    for label in jobs:
+        try:
+            _, first, _ = once(label)
+            state[label] = {"first": first, "times": [], "stages": [], "image": None}
+        except Exception as exc:  # noqa: BLE001 -- recorded, the others go on
+            state[label] = {"error": describe_error(exc)}
+    live = [k for k in jobs if "error" not in state[k]]
+    for _ in tqdm(range(int(repeats)), desc="timed rounds", disable=not progress):
+        for label in live:
+            img, seconds, stages = once(label)
+            s = state[label]
+            s["times"].append(seconds)
+            s["stages"].append(stages)
+            s["image"] = img
+    out = {}
+    for label in jobs:
+        s = state[label]
+        if "error" in s:
+            out[label] = {"error": s["error"]}
+        else:
+            out[label] = {**summarize(s["first"], s["times"], [r for r in s["stages"] if r]),
+                          "image": s["image"]}
+    return out
+
+
+def describe_error(exc: BaseException) -> str:
+    """A short status for a failed render: unsupported scenes (a
+    ``ValueError`` saying so) become ``not supported yet: ...``."""
+    cause = unwrap_render_error(exc)
+    text = f"{type(cause).__name__}: {cause}".replace("\n", " ")
+    if isinstance(cause, ValueError) and "support" in str(cause).lower():
+        return "not supported yet: " + text
+    return "failed: " + text
+
+
+def build(kind: str, params: dict | None = None):
+    """An integrator of ``kind`` with ``params`` (see ``make_integrator``)."""
+    return make_integrator(kind, dict(params or {}))
+
+
+def load(scene_path: str, defines: dict | None = None):
+    """The scene (suite assets are built on first use)."""
+    return load_scene(scene_path, defines)
+
+
+# --------------------------------------------------------------------------
+# Errors
+# --------------------------------------------------------------------------
+
+def errors(img, ref, blocks=BLOCKS, eps: float = metrics.DEFAULT_EPS) -> dict:
+    """:func:`metrics.compare` at each block size, flattened:
+    ``relmse_b<k>``, ``flip_b<k>``, ``rmse_b<k>``, ``max_error_b<k>``,
+    ``mean_ratio_b<k>`` and ``nonfinite`` (pixels with a NaN/Inf channel)."""
+    out = {}
+    for k in blocks:
+        c = metrics.compare(img, ref, block=k, eps=eps)
+        for key in ("relmse", "flip", "rmse", "max_error", "mean_ratio"):
+            out[f"{key}_b{k}"] = c[key]
+        out["nonfinite"] = c["nonfinite_test"]
+    return out
+
+
+# --------------------------------------------------------------------------
+# Output
+# --------------------------------------------------------------------------
+
+def environment() -> dict:
+    """:func:`episcatter.reference.environment` plus Dr.Jit's thread count
+    and the machine load now."""
+    import drjit as dr
+
+    env = _base_environment()
+    env["drjit_threads"] = int(dr.thread_count())
+    env["openblas_threads"] = blas_threads()
+    env["load_average"] = load_average()
+    return env
+
+
+def output_dir(name: str, out: str | None = None, quick: bool = False) -> Path:
+    """``out`` if given, else ``results/<name>`` (``results/<name>/quick``
+    for ``--quick``); created."""
+    path = Path(out) if out else RESULTS / name / ("quick" if quick else "")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _plain(value):
+    """Strict-JSON value: non-finite floats -> None, NumPy -> Python."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items() if not isinstance(v, np.ndarray)}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_json(path, settings: dict, rows: list[dict], **extra) -> None:
+    """``{"settings", "environment", "rows", **extra}`` as strict JSON."""
+    doc = {"settings": settings, "environment": environment(), "rows": rows, **extra}
+    with open(path, "w") as f:
+        json.dump(_plain(doc), f, indent=2)
+        f.write("\n")
+
+
+def _cell(value):
+    if isinstance(value, float):
+        return "" if not math.isfinite(value) else f"{value:.6g}"
+    if isinstance(value, (dict, list, tuple)):
+        return json.dumps(_plain(value), sort_keys=True)
+    return value
+
+
+def write_csv(path, rows: list[dict]) -> None:
+    """One row per dict; columns in first-seen order; NaN is empty."""
+    columns: list[str] = []
+    for r in rows:
+        columns += [k for k in r if k not in columns and not isinstance(r[k], np.ndarray)]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns, restval="", extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: _cell(v) for k, v in r.items() if k in columns})
+
+
+def write_text(path, text: str) -> None:
+    with open(path, "w") as f:
+        f.write(text.rstrip() + "\n")
+
+
+def fmt(value, digits: int = 3) -> str:
+    """Compact number for tables ('-' for missing / NaN)."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def markdown_table(header: list[str], rows: list[list]) -> str:
+    """A GitHub markdown table of already formatted cells."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def base_parser(doc: str, default_scenes: list[str], quick_scenes: list[str]):
+    """Options every experiment takes: ``--quick``, ``--scenes``,
+    ``--repeats``, ``--out``; the scene defaults depend on ``--quick``
+    (resolve with :func:`scenes_of`)."""
+    p = argparse.ArgumentParser(description=doc.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true",
+                   help="tiny resolution and few settings (seconds; used by the tests)")
+    p.add_argument("--scenes", nargs="+", default=None,
+                   help=f"scene stems or XML paths (default {' '.join(default_scenes)}; "
+                        f"--quick: {' '.join(quick_scenes)})")
+    p.add_argument("--repeats", type=int, default=None,
+                   help="timed runs per setting after the warm-up (default 3, --quick 1)")
+    p.add_argument("--out", default=None, help="output folder (default results/<name>)")
+    p.set_defaults(_scenes=(default_scenes, quick_scenes))
+    return p
+
+
+def scenes_of(args) -> list[str]:
+    """The scenes an experiment runs on (``--scenes`` or the defaults)."""
+    default, quick = args._scenes
+    return args.scenes or (quick if args.quick else default)
+
+
+def repeats_of(args) -> int:
+    """Timed runs per setting: ``--repeats`` or 3 (1 with ``--quick``)."""
+    return args.repeats or (1 if args.quick else 3)
+
+
+def savefig(fig, path) -> None:
+    """Save a small PNG and close the figure."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def pyplot():
+    """matplotlib.pyplot with the Agg backend."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+__all__ = ["ROOT", "RESULTS", "REFERENCE_STEPS", "BLOCKS", "scene_file", "resolution",
+           "exact_reference", "reference_note", "load_average", "summarize",
+           "capture_substages", "blas_threads", "limit_blas_threads", "time_renders", "time_jobs", "describe_error", "build", "load", "errors",
+           "environment", "output_dir", "write_json", "write_csv", "write_text", "fmt",
+           "markdown_table", "base_parser", "scenes_of", "repeats_of", "savefig", "pyplot"]

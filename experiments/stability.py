@@ -1,0 +1,369 @@
+"""Numerical stability of ``epipolar_tree`` and ``fourier_filter`` on stress
+cases (issue point 5).
+
+No paper table mirrors this (Baran 2010 §3 and §8 and Klehm 2014 §4 discuss
+the epipole cases only in words); it checks the geometric corner cases of
+the epipolar rectification and extreme media/scales for NaN/Inf and bounded
+error.  Each case is a small test scene (64x48; camera inside a fog box, a
+floor, a blocker sphere, see :func:`stress_scene`) rendered by both methods
+at their defaults and by the exact working reference (``raymarch
+visibility=exact``, 2048 steps, 1 spp at the pixel centres, the same
+samples).  Cases:
+
+- ``epipole``: the epipole (directional light) exactly on a pixel centre,
+  on the left image border, on an image corner, at infinity (light
+  parallel to the image plane) and 1e-4 rad off it, behind the camera (the
+  anti-epipole on a pixel centre); a point light on a pixel centre, behind
+  the camera and in the camera's image plane (epipole at infinity);
+- ``sigma_t``: σt = 1e-4 ... 10 per unit (box half-size 4), and 30 and 100
+  beyond the issue's range (light-side optical depths > 88, where
+  e^{σt·u} overflows float32);
+- ``scale``: the whole scene (positions, sizes, medium box, near/far clip)
+  scaled by 0.01 ... 10,000, with σt scaled inversely (same optical depths:
+  the image must not change; the reference's own deviation from scale 1 is
+  listed) and with σt fixed; a point light (intensity · scale², so the
+  image again must not change) in the first variant.
+
+Per case and method: NaN/Inf pixel count, relMSE (eps 1e-2), max |error|,
+max |error| / max(reference), mean ratio.  ``bounded`` = no NaN/Inf and
+relMSE <= 1e-2 (BOUND) and max |error| <= 0.5 · max(reference) (PEAK_BOUND).  A method that rejects a case (e.g. a point light
+not supported yet) is recorded with its status.
+
+Writes ``results/stability/``: ``stability.csv``, ``stability.json``,
+``table.md``, ``stability.png``.  ``python -m experiments.stability [--quick]``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import common as c
+
+NAME = "stability"
+METHODS = ("epipolar_tree", "fourier_filter")
+#: relMSE at or below which a finite image counts as "bounded" ...
+BOUND = 1e-2
+#: ... if also no pixel is off by more than this fraction of the reference's peak
+PEAK_BOUND = 0.5
+CAMERA = {"origin": [0.0, 0.5, 3.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0]}
+FOV = 60.0
+DEFAULT_DIRECTION = [0.3, -1.0, -0.2]
+SIGMA_T = 0.3
+
+
+# --------------------------------------------------------------------------
+# Scenes
+# --------------------------------------------------------------------------
+
+def stress_scene(light: dict, sigma_t: float = SIGMA_T, scale: float = 1.0,
+                 res=(64, 48), albedo: float = 0.8) -> dict:
+    """Scene dict: camera in a fog box (half-size 4), a floor, a blocker
+    sphere; every length (and the clip planes) multiplied by ``scale``.
+    ``light`` is a directional or point emitter dict (point positions are
+    given at scale 1 and scaled here)."""
+    import mitsuba as mi
+
+    T = mi.ScalarTransform4f
+    s = float(scale)
+    cam = {k: [s * v for v in CAMERA[k]] if k != "up" else CAMERA[k] for k in CAMERA}
+    light = dict(light)
+    if light["type"] == "point":
+        light["position"] = [s * v for v in light["position"]]
+    return {
+        "type": "scene",
+        "medium": {"type": "homogeneous", "id": "medium", "sigma_t": float(sigma_t),
+                   "albedo": albedo, "phase": {"type": "isotropic"}},
+        "sensor": {"type": "perspective", "fov": FOV, "near_clip": 0.01 * s,
+                   "far_clip": 1e4 * s, "to_world": T().look_at(**cam),
+                   "film": {"type": "hdrfilm", "width": res[0], "height": res[1],
+                            "rfilter": {"type": "box"}},
+                   "medium": {"type": "ref", "id": "medium"}},
+        "box": {"type": "cube", "to_world": T().scale(4.0 * s), "bsdf": {"type": "null"},
+                "interior": {"type": "ref", "id": "medium"}},
+        "floor": {"type": "rectangle",
+                  "to_world": T().scale(s).translate([0, -1, 0]).rotate([1, 0, 0], -90).scale(3),
+                  "bsdf": {"type": "diffuse", "reflectance": 0.5}},
+        "blocker": {"type": "sphere", "center": [0, 0.8 * s, 0], "radius": 0.4 * s,
+                    "bsdf": {"type": "diffuse", "reflectance": 0.5}},
+        "light": light,
+    }
+
+
+def pixel_direction(u: float, v: float, res=(64, 48)) -> list[float]:
+    """World direction of the camera ray through film position (u, v) in
+    [0, 1]² (pixel (i, j)'s centre: ((i + ½)/W, (j + ½)/H))."""
+    import mitsuba as mi
+
+    sensor = dict(stress_scene(directional(DEFAULT_DIRECTION), res=res)["sensor"])
+    sensor.pop("medium")
+    sensor = mi.load_dict(sensor)
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u, v), mi.Point2f(0.5, 0.5))
+    return [float(x[0]) for x in (ray.d.x, ray.d.y, ray.d.z)]
+
+
+def camera_axes() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(right, up, forward) unit vectors of the camera."""
+    o, t, up = (np.array(CAMERA[k], float) for k in ("origin", "target", "up"))
+    f = (t - o) / np.linalg.norm(t - o)
+    r = np.cross(up, f)
+    r /= np.linalg.norm(r)
+    return r, np.cross(f, r), f
+
+
+def directional(direction) -> dict:
+    return {"type": "directional", "direction": [float(x) for x in direction],
+            "irradiance": 2.0}
+
+
+def point(position, intensity: float = 10.0) -> dict:
+    return {"type": "point", "position": [float(x) for x in position],
+            "intensity": float(intensity)}
+
+
+# --------------------------------------------------------------------------
+# Cases
+# --------------------------------------------------------------------------
+
+def epipole_cases(res) -> list[dict]:
+    """The epipole cases (module doc).  A directional light's ``direction``
+    is the way its light travels, so −ray puts the epipole (the sun) on that
+    pixel and +ray puts the sun behind the camera."""
+    W, H = res
+    i, j = W * 5 // 16, H * 7 // 24                 # pixel (20, 14) at 64x48
+    centre = pixel_direction((i + 0.5) / W, (j + 0.5) / H, res)
+    border = pixel_direction(0.0, (H * 5 // 8 + 0.5) / H, res)
+    corner = pixel_direction(0.0, 0.0, res)
+    right, up, fwd = camera_axes()
+    eye = np.array(CAMERA["origin"], float)
+    tilt = 1e-4
+    parallel = -(0.8 * right + 0.6 * up)          # light parallel to the image plane
+    near_parallel = parallel + math.tan(tilt) * fwd
+    cases = [
+        (f"epipole on pixel centre ({i},{j})", directional(-np.array(centre))),
+        ("epipole on left border", directional(-np.array(border))),
+        ("epipole on top-left corner", directional(-np.array(corner))),
+        ("epipole at infinity (light parallel to image plane)", directional(parallel)),
+        ("epipole near infinity (1e-4 rad)", directional(near_parallel)),
+        ("epipole behind camera (anti-epipole on pixel centre)", directional(centre)),
+        ("point: epipole on pixel centre", point(eye + 2.0 * np.array(centre))),
+        ("point: behind camera", point(eye - 2.0 * np.array(centre))),
+        ("point: in the image plane (epipole at infinity)",
+         point(eye + 1.5 * right + 0.5 * up)),
+    ]
+    return [{"group": "epipole", "case": name, "light": light, "sigma_t": SIGMA_T, "scale": 1.0}
+            for name, light in cases]
+
+
+def sigma_cases(values) -> list[dict]:
+    return [{"group": "sigma_t", "case": f"sigma_t = {v:g}", "light": directional(DEFAULT_DIRECTION),
+             "sigma_t": v, "scale": 1.0} for v in values]
+
+
+def scale_cases(values) -> list[dict]:
+    """Scaled scenes: optical depth kept (σt / scale), σt fixed, and a point
+    light with optical depth kept (intensity · scale²)."""
+    out = []
+    for s in values:
+        out.append({"group": "scale, optical depth fixed", "case": f"scale {s:g}",
+                    "light": directional(DEFAULT_DIRECTION), "sigma_t": SIGMA_T / s, "scale": s})
+        out.append({"group": "scale, sigma_t fixed", "case": f"scale {s:g}",
+                    "light": directional(DEFAULT_DIRECTION), "sigma_t": SIGMA_T, "scale": s})
+        out.append({"group": "scale, point light, optical depth fixed", "case": f"scale {s:g}",
+                    "light": point([0.3, 2.0, 0.4], 10.0 * s * s), "sigma_t": SIGMA_T / s,
+                    "scale": s})
+    return out
+
+
+def settings_for(quick: bool) -> dict:
+    if quick:
+        return {"res": (32, 24), "reference_steps": 256, "sigma_t": [10.0],
+                "scales": [1.0, 1e4], "epipole": True}
+    return {"res": (64, 48), "reference_steps": c.REFERENCE_STEPS,
+            "sigma_t": [1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0, 30.0, 100.0],
+            "scales": [0.01, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4], "epipole": True}
+
+
+def all_cases(s: dict) -> list[dict]:
+    cases = epipole_cases(s["res"]) if s["epipole"] else []
+    if s.get("quick_subset"):
+        cases = cases[:2]
+    return cases + sigma_cases(s["sigma_t"]) + scale_cases(s["scales"])
+
+
+# --------------------------------------------------------------------------
+# Measuring
+# --------------------------------------------------------------------------
+
+def render(scene, kind: str, props: dict):
+    """(image, status): the rendered (H, W, 3) image or None and why not."""
+    from episcatter.reference import render_rgb
+
+    try:
+        return render_rgb(scene, c.build(kind, props)), "ok"
+    except Exception as exc:  # noqa: BLE001 -- recorded, the other cases go on
+        return None, c.describe_error(exc)
+
+
+def stats(img, ref) -> dict:
+    """NaN/Inf count, relMSE, max |error| (absolute and / max ref), mean ratio."""
+    e = c.errors(img, ref, blocks=(1,))
+    finite = np.all(np.isfinite(img), axis=-1)
+    diff = np.abs(np.where(finite[..., None], img, 0.0) - ref)
+    peak = float(np.max(np.abs(ref)))
+    max_abs = float(np.max(diff[finite])) if finite.any() else math.nan
+    return {"nonfinite": e["nonfinite"], "relmse": e["relmse_b1"], "max_abs_error": max_abs,
+            "max_rel_to_peak": max_abs / peak if peak > 0 else math.nan,
+            "mean_ratio": e["mean_ratio_b1"], "ref_peak": peak,
+            "bounded": bounded(e["nonfinite"], e["relmse_b1"], max_abs, peak)}
+
+
+def bounded(nonfinite: int, relmse: float, max_abs: float, peak: float) -> bool:
+    """No NaN/Inf, relMSE <= BOUND and max |error| <= PEAK_BOUND · peak (an
+    all-black reference needs an all-black image)."""
+    return bool(nonfinite == 0 and relmse <= BOUND and max_abs <= PEAK_BOUND * peak)
+
+
+def run_case(case: dict, s: dict, scale1_refs: dict) -> list[dict]:
+    """The reference and both methods on one case (one row per method)."""
+    import mitsuba as mi
+
+    scene = mi.load_dict(stress_scene(case["light"], case["sigma_t"], case["scale"], s["res"]))
+    ref, status = render(scene, "raymarch", {"visibility": "exact",
+                                             "steps": s["reference_steps"]})
+    base = {"group": case["group"], "case": case["case"], "sigma_t": case["sigma_t"],
+            "scale": case["scale"], "light": case["light"]["type"]}
+    if ref is None:
+        return [{**base, "method": "reference", "status": status}]
+    key = case["group"]
+    if case["scale"] == 1.0:
+        scale1_refs[key] = ref
+    ref_dev = (c.errors(ref, scale1_refs[key], blocks=(1,))["relmse_b1"]
+               if key in scale1_refs and key.startswith("scale") and "fixed" in key
+               and "sigma_t fixed" not in key else math.nan)
+    rows = []
+    for kind in METHODS:
+        img, status = render(scene, kind, {})
+        row = {**base, "method": kind, "status": status, "ref_nonfinite":
+               int((~np.all(np.isfinite(ref), axis=-1)).sum()),
+               "ref_relmse_vs_scale1": ref_dev}
+        if img is not None:
+            row.update(stats(img, ref))
+        rows.append(row)
+    return rows
+
+
+def ordered(cases: list[dict]) -> list[dict]:
+    """Scale 1 first in each scale group, so later scales can be compared
+    with its reference."""
+    return sorted(cases, key=lambda k: (k["group"] != "epipole", k["scale"] != 1.0))
+
+
+# --------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------
+
+def table(rows: list[dict]) -> str:
+    header = ["group", "case", "method", "NaN/Inf px", "relMSE", "max abs err",
+              "max err / peak", "mean ratio", "bounded", "status"]
+    body = []
+    for r in rows:
+        ok = r["status"] == "ok"
+        body.append([r["group"], r["case"], r["method"],
+                     c.fmt(r.get("nonfinite")) if ok else "-", c.fmt(r.get("relmse")),
+                     c.fmt(r.get("max_abs_error")), c.fmt(r.get("max_rel_to_peak")),
+                     c.fmt(r.get("mean_ratio"), 4),
+                     ("yes" if r.get("bounded") else "**no**") if ok else "-",
+                     "ok" if ok else r["status"][:80]])
+    return c.markdown_table(header, body)
+
+
+def summary(rows: list[dict]) -> str:
+    lines = []
+    for kind in METHODS:
+        mine = [r for r in rows if r["method"] == kind]
+        ok = [r for r in mine if r["status"] == "ok"]
+        bad = [f"{r['group']} / {r['case']}" for r in ok if not r["bounded"]]
+        lines.append(f"- {kind}: {len(ok)}/{len(mine)} cases rendered, "
+                     f"{sum(r['nonfinite'] for r in ok)} NaN/Inf pixels in total, "
+                     f"{len(ok) - len(bad)} bounded; unbounded: "
+                     + ("; ".join(bad) if bad else "none")
+                     + f"; not rendered: {len(mine) - len(ok)}")
+    return "\n".join(lines)
+
+
+def plot(path, rows) -> None:
+    """Per case and method: relMSE and max |error| / peak (log scale; a
+    black image against a black reference sits at the left edge); red x =
+    NaN/Inf pixels."""
+    plt = c.pyplot()
+    label = (lambda r: f"{r['group'][:14]}: {r['case'][:34]}")
+    labels = list(dict.fromkeys(label(r) for r in rows if r["method"] in METHODS))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 0.17 * len(labels) + 1.3), sharey=True)
+    floor = 1e-12
+    for ax, key, bound in ((axes[0], "relmse", BOUND), (axes[1], "max_rel_to_peak", PEAK_BOUND)):
+        for kind, marker in zip(METHODS, "os"):
+            pts, bad = [], []
+            for i, lab in enumerate(labels):
+                r = next((r for r in rows if r["method"] == kind and label(r) == lab), None)
+                if r and r["status"] == "ok":
+                    v = r.get(key)
+                    pts.append((max(v, floor) if v == v and v is not None else floor, i))
+                    if r["nonfinite"]:
+                        bad.append(pts[-1])
+            if pts:
+                ax.plot(*zip(*pts), marker, ms=4, label=kind, alpha=0.8)
+            if bad:
+                ax.plot(*zip(*bad), "x", color="red", ms=8)
+        ax.axvline(bound, color="gray", ls="--", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_xlabel({"relmse": "relMSE vs exact raymarch",
+                       "max_rel_to_peak": "max |error| / max(reference)"}[key], fontsize=8)
+        ax.grid(True, axis="x", alpha=0.3)
+    axes[0].set_yticks(range(len(labels)), labels, fontsize=6)
+    axes[0].invert_yaxis()
+    axes[0].legend(fontsize=7, title="red x: NaN/Inf; missing: not rendered",
+                   title_fontsize=6)
+    c.savefig(fig, path)
+
+
+def case_order(rows: list[dict], cases: list[dict]) -> list[dict]:
+    """Rows in the order of ``cases`` (ascending scale within a group)."""
+    pos = {(k["group"], k["case"]): i for i, k in enumerate(cases)}
+    return sorted(rows, key=lambda r: pos.get((r["group"], r["case"]), len(pos)))
+
+
+def main(argv=None):
+    p = c.base_parser(__doc__, [], [])
+    args = p.parse_args(argv)
+    s = settings_for(args.quick)
+    if args.quick:
+        s["quick_subset"] = True
+    out = c.output_dir(NAME, args.out, args.quick)
+    rows, refs = [], {}
+    for case in ordered(all_cases(s)):
+        rows += run_case(case, s, refs)
+    rows = case_order(rows, all_cases(s))
+    text = "\n\n".join([
+        f"# stability ({s['res'][0]}x{s['res'][1]}, 1 spp)",
+        f"Against raymarch visibility=exact steps={s['reference_steps']} at the same pixel "
+        f"centres; relMSE eps 1e-2; bounded = no NaN/Inf, relMSE <= {BOUND:g} and max |error| "
+        f"<= {PEAK_BOUND:g} x the reference's peak (NaN/Inf pixels are left out of the other "
+        "metrics). "
+        "'ref_relmse_vs_scale1' in the CSV: the reference's own deviation from its scale-1 "
+        "image where the scaled scene should look the same.",
+        summary(rows), table(rows)])
+    print(text)
+    settings = {"name": NAME, **{k: v for k, v in s.items() if k != "quick_subset"},
+                "quick": args.quick, "methods": list(METHODS), "bound_relmse": BOUND,
+                "camera": CAMERA, "fov": FOV, "cases": [
+                    {k: v for k, v in case.items()} for case in all_cases(s)]}
+    c.write_csv(out / "stability.csv", rows)
+    c.write_json(out / "stability.json", settings, rows)
+    c.write_text(out / "table.md", text)
+    plot(out / "stability.png", rows)
+    return rows
+
+
+if __name__ == "__main__":
+    main()

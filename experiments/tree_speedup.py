@@ -1,0 +1,328 @@
+"""Equal-error speedup of ``epipolar_tree`` over shadow-mapped ray marching
+(issue point 3).
+
+Mirrors Baran et al. 2010, §10.1 / Fig. 11 (CPU, 1280x960, "17.1x-120.4x
+for similar quality"), with the visual match replaced by a measured one:
+
+1. on each scene, ``raymarch visibility=shadowmap`` (2048² map, 2x2 PCF)
+   runs a sweep of ``steps`` (16 ... 2048); with its relMSE against the
+   exact working reference (``raymarch visibility=exact``, 2048 steps, 1 spp
+   at the pixel centres, :func:`experiments.common.exact_reference`) this
+   gives its time/error curve;
+2. ``epipolar_tree`` runs at its defaults (``traced``: light rays traced by
+   Mitsuba) and with ``rectification=resampled`` from a shadow map of the
+   *same* resolution as the ray marcher's (the paper's setting: "both
+   algorithms use a 4096x4096 shadow map");
+3. the ray marcher's time at the tree's relMSE is interpolated log-log
+   between the two sweep settings that bracket it; speedup = that time / the
+   tree's time.  If even 2048 steps do not reach the tree's error, the
+   speedup is a lower bound (``>=``, time at 2048 steps); if 16 steps are
+   already better, an upper bound (``<=``).
+
+Time conventions (all medians of 3 warm runs after a warm-up, interleaved
+rounds in one process, Dr.Jit on every core; camera capture excluded from
+the first two):
+
+``paper``  (Baran §10: "do not include the time taken by [the depth and
+    shadow maps'] construction"): raymarch = its scattering stage minus the
+    shadow-map build (the march alone); tree = its whole scattering stage
+    (rectify, blockers, svd, sweep, unrectify, ring).  For ``traced`` the
+    blockers stage is the tree's own visibility capture (tracing d·k rays
+    per slice), kept in: conservative for the tree.  For ``resampled`` the
+    blockers stage builds the same shadow map; its build time is taken out,
+    estimated by the ray marcher's median ``shadowmap`` stage on that scene
+    (the same ``capture_shadow_map`` call).
+``scattering``: both scattering stages as they are (shadow maps included).
+``total``: end-to-end ``mi.render`` (validate, capture, scattering, compose).
+
+Writes ``results/tree_speedup/``: ``runs.csv`` (every setting: times,
+stages, errors), ``speedup.csv`` (per scene, tree variant and convention),
+``speedup.json``, ``table.md``, ``speedup.png``.
+``python -m experiments.tree_speedup [--quick] [--scenes ...]``.
+"""
+from __future__ import annotations
+
+import math
+
+from . import common as c
+
+NAME = "tree_speedup"
+SCENES = ["nave_offscreen", "nave_onscreen", "grove", "terrain"]
+QUICK_SCENES = ["nave_offscreen"]
+CONVENTIONS = ("paper", "scattering", "total")
+TREE_STAGES = ("rectify", "blockers", "svd", "sweep", "unrectify", "ring")
+#: Baran 2010 Fig. 11 (CPU, 1280x960) and the issue's targets
+PAPER_SPEEDUP = {"nave_offscreen": "~73 (SIBENIK, epipole off-screen)",
+                 "nave_onscreen": "17.1 (SIBENIK)", "grove": "120.4 (TREES)",
+                 "terrain": "LANDSCAPE (in 17.1-120.4)"}
+TARGET = {"nave_offscreen": 50, "nave_onscreen": 50, "grove": 150}
+
+
+def settings_for(quick: bool) -> dict:
+    """Resolution, sweep and shadow-map size (``--quick``: tiny)."""
+    if quick:
+        return {"width": 80, "height": 60, "steps": [4, 16, 64], "shadowmap_resolution": 256,
+                "reference_steps": 256}
+    return {"width": 1280, "height": 960, "steps": [16, 32, 64, 128, 256, 512, 1024, 2048],
+            "shadowmap_resolution": 2048, "reference_steps": c.REFERENCE_STEPS}
+
+
+#: settings whose renders run with OpenBLAS limited to one thread
+BLAS_1 = "tree traced, BLAS 1 thread"
+
+
+def settings_of_run(s: dict) -> dict:
+    """label -> (integrator type, properties) of every measured setting.
+
+    ``BLAS_1`` is the default tree again, with NumPy's OpenBLAS limited to
+    one thread during its renders (:func:`experiments.common.limit_blas_threads`):
+    on this 2-core machine shared with other jobs, OpenBLAS's spinning
+    worker threads can turn the 64x64 SVD of the ``svd`` stage from
+    ~0.3 ms into tens or hundreds of ms."""
+    sm = s["shadowmap_resolution"]
+    out = {"tree traced": ("epipolar_tree", {}),
+           BLAS_1: ("epipolar_tree", {}),
+           "tree resampled": ("epipolar_tree", {"rectification": "resampled",
+                                                "shadowmap_resolution": sm})}
+    for n in s["steps"]:
+        out[f"raymarch {n}"] = ("raymarch", {"visibility": "shadowmap", "steps": n,
+                                             "shadowmap_resolution": sm})
+    return out
+
+
+# --------------------------------------------------------------------------
+# Measuring
+# --------------------------------------------------------------------------
+
+def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
+    """Every setting on one scene: times, stages and errors (one row each)."""
+    path = c.scene_file(name)
+    defines = c.resolution(s["width"], s["height"])
+    ref, info = c.exact_reference(path, defines, s["reference_steps"], progress=progress)
+    scene = c.load(path, defines)
+    settings = settings_of_run(s)
+    integs = {label: c.build(kind, props) for label, (kind, props) in settings.items()}
+    load_before = c.load_average()
+    timed = c.time_renders(scene, integs, repeats=repeats, progress=progress,
+                           contexts={BLAS_1: lambda: c.limit_blas_threads(1)})
+    load_after = c.load_average()
+    rows = []
+    for label, (kind, props) in settings.items():
+        t = timed[label]
+        row = {"scene": name, "setting": label, "integrator": kind, "params": props,
+               "blas_threads": 1 if label == BLAS_1 else c.blas_threads(),
+               "steps": props.get("steps"), "width": s["width"], "height": s["height"],
+               "status": t.get("error", "ok"), "load_before": load_before,
+               "load_after": load_after, "reference": info["path"]}
+        if "error" not in t:
+            row.update(c.errors(t["image"], ref))
+            row.update({k: t[k] for k in ("time_s", "time_min_s", "time_max_s", "first_run_s",
+                                          "scattering_s", "scattering_net_s", "stages")})
+        rows.append(row)
+    add_paper_times(rows)
+    return rows
+
+
+def add_paper_times(rows: list[dict]) -> None:
+    """``paper_s`` of every row (module doc): raymarch's march alone; the
+    traced tree's scattering stage; the resampled tree's scattering stage
+    minus the ray marcher's median shadow-map build on that scene."""
+    builds = sorted(r["stages"]["shadowmap"] for r in rows
+                    if r["status"] == "ok" and "shadowmap" in r.get("stages", {}))
+    build = builds[len(builds) // 2] if builds else math.nan
+    for r in rows:
+        if r["status"] != "ok":
+            continue
+        if r["integrator"] == "raymarch":
+            r["paper_s"] = r["scattering_net_s"]
+        elif r["params"].get("rectification") == "resampled":
+            r["paper_s"] = r["scattering_s"] - build
+            r["shadowmap_build_estimate_s"] = build
+        else:
+            r["paper_s"] = r["scattering_s"]
+
+
+# --------------------------------------------------------------------------
+# Equal error
+# --------------------------------------------------------------------------
+
+def time_key(convention: str) -> str:
+    return {"paper": "paper_s", "scattering": "scattering_s", "total": "time_s"}[convention]
+
+
+def equal_error_time(curve: list[tuple[float, float]], target: float):
+    """(time, bound) of the baseline at error ``target`` on ``curve`` =
+    [(time, error), ...] in sweep order (more steps later).
+
+    Log-log interpolation on the first segment whose error falls from above
+    ``target`` to at or below it: bound ``"="``.  If no setting reaches
+    ``target``: the last setting's time, bound ``">="`` (the speedup is at
+    least time/tree).  If the first setting is already at or below it: its
+    time, bound ``"<="``."""
+    pts = [(t, e) for t, e in curve if t > 0 and e > 0 and math.isfinite(t * e)]
+    if not pts or not (target > 0):
+        return math.nan, "n/a"
+    if pts[0][1] <= target:
+        return pts[0][0], "<="
+    for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
+        if e0 > target >= e1:
+            w = (math.log(target) - math.log(e0)) / (math.log(e1) - math.log(e0))
+            return math.exp(math.log(t0) + w * (math.log(t1) - math.log(t0))), "="
+    return pts[-1][0], ">="
+
+
+def speedups(rows: list[dict]) -> list[dict]:
+    """One row per (scene, tree variant, convention): the tree's time and
+    relMSE, the interpolated raymarch time and steps, speedup and bound."""
+    out = []
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        mine = [r for r in rows if r["scene"] == scene and r["status"] == "ok"]
+        marches = sorted((r for r in mine if r["integrator"] == "raymarch"),
+                         key=lambda r: r["steps"])
+        for tree in (r for r in mine if r["integrator"] == "epipolar_tree"):
+            for conv in CONVENTIONS:
+                key = time_key(conv)
+                curve = [(r[key], r["relmse_b1"]) for r in marches]
+                t_rm, bound = equal_error_time(curve, tree["relmse_b1"])
+                steps, _ = equal_error_time([(r["steps"], r["relmse_b1"]) for r in marches],
+                                            tree["relmse_b1"])
+                out.append({"scene": scene, "tree": tree["setting"], "convention": conv,
+                            "tree_relmse_b1": tree["relmse_b1"], "tree_flip_b1": tree["flip_b1"],
+                            "tree_time_s": tree[key], "raymarch_time_s": t_rm,
+                            "raymarch_steps_equal_error": steps, "bound": bound,
+                            "speedup": t_rm / tree[key] if tree[key] > 0 else math.nan,
+                            "target": TARGET.get(scene), "paper": PAPER_SPEEDUP.get(scene)})
+    return out
+
+
+# --------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------
+
+def speedup_text(r: dict) -> str:
+    prefix = {"=": "", ">=": ">= ", "<=": "<= "}.get(r["bound"], "")
+    return prefix + c.fmt(r["speedup"]) + "x"
+
+
+def speedup_table(summary: list[dict]) -> str:
+    header = ["scene", "tree", "tree relMSE", "raymarch steps @ equal error",
+              "speedup paper", "speedup scattering", "speedup total", "target", "paper"]
+    body = []
+    for (scene, tree) in dict.fromkeys((r["scene"], r["tree"]) for r in summary):
+        by = {r["convention"]: r for r in summary if r["scene"] == scene and r["tree"] == tree}
+        p = by["paper"]
+        body.append([scene, tree, c.fmt(p["tree_relmse_b1"]),
+                     ("" if p["bound"] == "=" else p["bound"] + " ")
+                     + c.fmt(p["raymarch_steps_equal_error"], 4),
+                     *(speedup_text(by[k]) for k in CONVENTIONS),
+                     f">= {p['target']}x" if p["target"] else "-", p["paper"] or "-"])
+    return c.markdown_table(header, body)
+
+
+def runs_table(rows: list[dict]) -> str:
+    """Every setting: times in ms (paper / scattering / total), relMSE, FLIP."""
+    header = ["scene", "setting", "paper [ms]", "scattering [ms]", "total [ms]",
+              "shadow map [ms]", "relMSE b1", "FLIP b1", "relMSE b2", "status"]
+    body = []
+    for r in rows:
+        ms = (lambda v: c.fmt(1000 * v, 4) if isinstance(v, float) else "-")
+        body.append([r["scene"], r["setting"], ms(r.get("paper_s")), ms(r.get("scattering_s")),
+                     ms(r.get("time_s")), ms((r.get("stages") or {}).get("shadowmap")),
+                     c.fmt(r.get("relmse_b1")), c.fmt(r.get("flip_b1")),
+                     c.fmt(r.get("relmse_b2")), "ok" if r["status"] == "ok" else r["status"][:80]])
+    return c.markdown_table(header, body)
+
+
+def stage_table(rows: list[dict]) -> str:
+    """Where the tree's time goes: each stage in ms and % of scattering."""
+    header = ["scene", "tree", *TREE_STAGES, "scattering [ms]", "capture [ms]", "total [ms]"]
+    body = []
+    for r in rows:
+        if r["integrator"] != "epipolar_tree" or r["status"] != "ok":
+            continue
+        st, scat = r["stages"], r["scattering_s"]
+        cells = [f"{1000 * st.get(k, 0):.0f} ({100 * st.get(k, 0) / scat:.0f}%)"
+                 for k in TREE_STAGES]
+        body.append([r["scene"], r["setting"], *cells, f"{1000 * scat:.0f}",
+                     f"{1000 * st.get('capture', 0):.0f}", f"{1000 * r['time_s']:.0f}"])
+    return c.markdown_table(header, body)
+
+
+def plot(path, rows: list[dict]) -> None:
+    """Per scene: raymarch time ('paper' convention) vs relMSE over the
+    sweep, the trees as points, dashed lines at the trees' errors."""
+    plt = c.pyplot()
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    cols = min(2, len(scenes))
+    nrows = math.ceil(len(scenes) / cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.2 * nrows), squeeze=False)
+    for ax, scene in zip(axes.flat, scenes):
+        ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok"]
+        rm = sorted((r for r in ok if r["integrator"] == "raymarch"), key=lambda r: r["steps"])
+        ax.plot([r["paper_s"] for r in rm], [r["relmse_b1"] for r in rm], "o-", ms=3,
+                label="raymarch (march only)")
+        for r in rm:
+            ax.annotate(str(r["steps"]), (r["paper_s"], r["relmse_b1"]), fontsize=6)
+        for r, m in zip((r for r in ok if r["integrator"] == "epipolar_tree"), "sDv^"):
+            ax.plot([r["paper_s"]], [r["relmse_b1"]], m, label=r["setting"])
+            ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(scene, fontsize=9)
+        ax.set_xlabel("scattering time [s] ('paper' convention)", fontsize=8)
+        ax.set_ylabel("relMSE vs exact (block 1)", fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+    for ax in list(axes.flat)[len(scenes):]:
+        ax.axis("off")
+    c.savefig(fig, path)
+
+
+def report(rows, summary, s, repeats) -> str:
+    """The markdown report (table.md)."""
+    loads = [r["load_before"] for r in rows] + [r["load_after"] for r in rows]
+    return "\n\n".join([
+        f"# tree_speedup ({s['width']}x{s['height']}, 1 spp, shadow maps "
+        f"{s['shadowmap_resolution']}²)",
+        f"Errors against the {c.reference_note(s['reference_steps'])}. Times: median of "
+        f"{repeats} warm runs, interleaved rounds, {c.environment()['drjit_threads']} threads; "
+        f"load average (1/5/15 min) over the runs: first {loads[0]}, "
+        f"max 1-min {max(l[0] for l in loads)}. Conventions: see the module docstring of "
+        "experiments/tree_speedup.py ('paper' = raymarch march only vs the tree's whole "
+        "scattering stage).",
+        "## Equal-error speedup", speedup_table(summary),
+        "## Where the tree's time goes (median ms, % of its scattering stage)",
+        stage_table(rows),
+        "## Every setting", runs_table(rows)])
+
+
+def main(argv=None):
+    args = c.base_parser(__doc__, SCENES, QUICK_SCENES).parse_args(argv)
+    s = settings_for(args.quick)
+    repeats = c.repeats_of(args)
+    out = c.output_dir(NAME, args.out, args.quick)
+    rows = []
+    for name in c.scenes_of(args):
+        rows += measure_scene(name, s, repeats, progress=not args.quick)
+        print(f"{name}: done (load {c.load_average()})", flush=True)
+    summary = speedups(rows)
+    text = report(rows, summary, s, repeats)
+    print(text)
+    settings = {"name": NAME, **s, "repeats": repeats, "scenes": c.scenes_of(args),
+                "settings": settings_of_run(s), "reference": c.reference_note(s["reference_steps"]),
+                "conventions": {"paper": "raymarch: scattering minus shadow-map build; tree "
+                                         "traced: scattering; tree resampled: scattering minus "
+                                         "raymarch's median shadow-map build",
+                                "scattering": "integrator.timings['scattering'] (median)",
+                                "total": "end-to-end mi.render wall time (median)"},
+                "quick": args.quick}
+    c.write_csv(out / "runs.csv", rows)
+    c.write_csv(out / "speedup.csv", summary)
+    c.write_json(out / "speedup.json", settings, rows, speedup=summary)
+    c.write_text(out / "table.md", text)
+    plot(out / "speedup.png", rows)
+    return rows, summary
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""The experiment scripts: helpers, and each ``--quick`` mode end to end
+(tiny images, their own reference cache in a temporary folder)."""
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from experiments import common, stability, tree_accuracy, tree_scaling, tree_speedup
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("EPISCATTER_CACHE", str(folder))
+    return folder
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def check_outputs(folder, names):
+    """Every file exists, is small, and the JSON carries settings and environment."""
+    for name in names:
+        path = folder / name
+        assert path.is_file(), name
+        assert path.stat().st_size < 500_000, name
+    for name in names:
+        if name.endswith(".json"):
+            doc = json.loads((folder / name).read_text())
+            assert doc["settings"] and doc["environment"]["drjit_threads"] >= 1
+
+
+# --------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------
+
+def test_equal_error_time_interpolates_log_log():
+    curve = [(1.0, 1e-2), (4.0, 1e-4), (16.0, 1e-6)]
+    t, bound = tree_speedup.equal_error_time(curve, 1e-3)
+    assert bound == "=" and t == pytest.approx(2.0)
+    assert tree_speedup.equal_error_time(curve, 1e-7) == (16.0, ">=")
+    assert tree_speedup.equal_error_time(curve, 1e-1) == (1.0, "<=")
+    # a plateau that rises again: the first crossing counts
+    t, bound = tree_speedup.equal_error_time([(1, 1e-2), (2, 1e-3), (4, 2e-3)], 1e-3)
+    assert (t, bound) == (2, "=")
+    assert math.isnan(tree_speedup.equal_error_time([], 1e-3)[0])
+
+
+def test_slope_of_power_law():
+    x = [1.0, 2.0, 4.0, 8.0]
+    assert tree_scaling.slope(x, [v ** 2.5 for v in x]) == pytest.approx(2.5)
+    assert math.isnan(tree_scaling.slope([1.0], [1.0]))
+
+
+def test_errors_flatten_blocks():
+    rng = np.random.default_rng(0)
+    ref = rng.random((8, 8, 3)) + 0.5
+    e = common.errors(ref * 1.01, ref)
+    assert e["nonfinite"] == 0 and e["relmse_b1"] > e["relmse_b2"] * 0.5
+    assert set(e) >= {"relmse_b1", "flip_b1", "relmse_b2", "flip_b2"}
+    bad = ref.copy()
+    bad[0, 0, 0] = np.nan
+    assert common.errors(bad, ref)["nonfinite"] == 1
+
+
+def test_limit_blas_threads_restores():
+    before = common.blas_threads()
+    with common.limit_blas_threads(1):
+        assert common.blas_threads() in (None, 1)
+    assert common.blas_threads() == before
+
+
+def test_describe_error_marks_unsupported():
+    exc = RuntimeError("wrapper")
+    exc.__cause__ = ValueError("only directional lights are supported")
+    assert common.describe_error(exc).startswith("not supported yet")
+    assert common.describe_error(KeyError("x")).startswith("failed")
+
+
+def test_stress_scene_scales_every_length():
+    import mitsuba as mi
+
+    d = stability.stress_scene(stability.point([0.3, 2.0, 0.4]), scale=100.0)
+    assert d["light"]["position"] == pytest.approx([30.0, 200.0, 40.0])
+    assert d["blocker"]["radius"] == 40.0 and d["sensor"]["near_clip"] == 1.0
+    scene = mi.load_dict(d)
+    assert scene.bbox().max.x == pytest.approx(400.0, rel=1e-5)
+
+
+def test_epipole_on_pixel_centre_is_on_pixel_centre():
+    """The directional light of the first case points back along the ray
+    through that pixel's centre."""
+    from rectify.describe import describe
+
+    from integrators.scene_params import SceneParams
+    import mitsuba as mi
+
+    res = (64, 48)
+    case = stability.epipole_cases(res)[0]
+    scene = mi.load_dict(stability.stress_scene(case["light"], res=res))
+    params = SceneParams.from_scene(scene)
+    info = describe(params.camera, ("directional", params.light.direction))
+    assert info["epipole_px"] == pytest.approx([20.5, 14.5], abs=1e-3)
+
+
+# --------------------------------------------------------------------------
+# --quick runs
+# --------------------------------------------------------------------------
+
+def test_tree_accuracy_quick(tmp_path, cache):
+    rows = tree_accuracy.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["accuracy.csv", "accuracy.json", "table.md", "accuracy.png",
+                             "error_maps.png"])
+    assert {r["method"] for r in rows} == {m[0] for m in tree_accuracy.METHODS}
+    tree = next(r for r in rows if r["method"] == "epipolar_tree")
+    assert tree["status"] == "ok" and tree["nonfinite"] == 0 and tree["relmse_b1"] < 0.05
+    assert "| epipolar_tree |" in (tmp_path / "table.md").read_text()
+
+
+def test_tree_speedup_quick(tmp_path, cache):
+    rows, summary = tree_speedup.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "speedup.csv", "speedup.json", "table.md",
+                             "speedup.png"])
+    assert all(r["status"] == "ok" for r in rows)
+    assert len(summary) == 3 * len(tree_speedup.CONVENTIONS)
+    for s in summary:
+        assert s["bound"] in ("=", ">=", "<=") and s["speedup"] > 0
+    assert len(read_csv(tmp_path / "runs.csv")) == len(rows)
+
+
+def test_tree_scaling_quick(tmp_path, cache):
+    rows, slopes = tree_scaling.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["scaling.csv", "slopes.csv", "scaling.json", "table.md",
+                             "scaling.png"])
+    fitted = {s["method"]: s for s in slopes if s["series"] == "fitted time"}
+    assert set(fitted) == {"epipolar_tree", "raymarch"}
+    assert all(math.isfinite(s["slope_all"]) for s in fitted.values())
+
+
+def test_stability_quick(tmp_path, cache):
+    rows = stability.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["stability.csv", "stability.json", "table.md", "stability.png"])
+    tree = [r for r in rows if r["method"] == "epipolar_tree"]
+    assert tree and all(r["status"] == "ok" for r in tree)
+    # the scaled scene with the optical depth kept looks the same as at scale 1
+    same = [r for r in tree if r["group"] == "scale, optical depth fixed" and r["scale"] != 1]
+    assert same and all(r["ref_relmse_vs_scale1"] < 1e-3 for r in same)
