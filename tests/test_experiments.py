@@ -149,3 +149,12 @@ def test_stability_quick(tmp_path, cache):
     # the scaled scene with the optical depth kept looks the same as at scale 1
     same = [r for r in tree if r["group"] == "scale, optical depth fixed" and r["scale"] != 1]
     assert same and all(r["ref_relmse_vs_scale1"] < 1e-3 for r in same)
+
+
+def test_spot_texture_cost_quick(tmp_path):
+    from experiments import spot_texture_cost
+    spot_texture_cost.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["cost.csv", "cost.json", "table.md"])
+    rows = read_csv(tmp_path / "cost.csv")
+    assert {r["light"] for r in rows} == {"textured", "untextured"}
+    assert all(float(r["textured_over_untextured"]) > 0 for r in rows)
