@@ -305,6 +305,30 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
     return list(acc)
 
 
+#: samples of the light-ray factors a_i(γ) tabulated once per frame
+A_TABLE = 4096
+
+
+def light_ray_terms(gamma: mi.Float, gamma_max: float, x_grid, WA, sigma_t: float):
+    """a_i(γ) at every light ray (:func:`exp_kernel_sum`).  There are s·d
+    light rays but a_i depends on γ alone, so when s·d ≫ ``A_TABLE`` the
+    sums are tabulated on ``A_TABLE`` points uniform in v = log(1 + c·γ)
+    (c = σt·max tan(β/2), where the fastest term decays; each term is then
+    smooth in v) and interpolated linearly: relative error ≈ (Δv)²/8 ≈ 1e-6,
+    far below the SVD tolerance, for a 64/2 = 32× cheaper stage."""
+    if dr.width(gamma) < 4 * A_TABLE:
+        return exp_kernel_sum(gamma, x_grid, WA, sigma_t)
+    c = max(sigma_t * float(np.max(x_grid)), 1e-6 / max(gamma_max, 1e-30))
+    v_max = math.log1p(c * gamma_max)
+    v_tab = np.linspace(0.0, v_max, A_TABLE)
+    table = exp_kernel_sum(mi.Float(np.expm1(v_tab) / c), x_grid, WA, sigma_t)
+    u = dr.log(1.0 + c * gamma) * ((A_TABLE - 1) / v_max)
+    i0 = mi.UInt32(dr.clip(dr.floor(u), 0, A_TABLE - 2))
+    f = dr.clip(u - mi.Float(i0), 0.0, 1.0)
+    return [dr.lerp(dr.gather(mi.Float, t, i0), dr.gather(mi.Float, t, i0 + 1), f)
+            for t in table]
+
+
 def separated_kernel(params, queries, rays, rank: int, tol: float):
     """A (n, d, C, N) at the start γ_g of every light-ray interval and
     B (n, r, C, N) at the queries' own β (padded slots: 0);
@@ -327,7 +351,7 @@ def separated_kernel(params, queries, rays, rank: int, tol: float):
     lane_b = queries.slot * (C * N)
     for c, (ch, (g_grid, x_grid, WA, WB)) in enumerate(zip(channels, seps)):
         Nc = WA.shape[1]
-        a_terms = exp_kernel_sum(gamma, x_grid, WA, float(sigma_t[ch]))
+        a_terms = light_ray_terms(gamma, gamma_max, x_grid, WA, float(sigma_t[ch]))
         b_terms = exp_kernel_sum(tan_half, g_grid, WB, float(sigma_t[ch]))
         for i in range(Nc):
             dr.scatter(A, a_terms[i], lane_a + c * N + i)
