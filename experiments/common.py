@@ -267,12 +267,33 @@ def errors(img, ref, blocks=BLOCKS, eps: float = metrics.DEFAULT_EPS) -> dict:
 # Output
 # --------------------------------------------------------------------------
 
+def source_state() -> dict:
+    """Which code made the numbers: the git commit and a hash of the
+    working-tree sources of ``integrators/``, ``rectify/`` and
+    ``episcatter/`` (uncommitted edits change it)."""
+    import hashlib
+    import subprocess
+
+    h = hashlib.sha256()
+    for folder in ("integrators", "rectify", "episcatter"):
+        for path in sorted((ROOT / folder).glob("*.py")):
+            h.update(path.name.encode())
+            h.update(path.read_bytes())
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        head = None
+    return {"git_head": head, "sources_sha256": h.hexdigest()[:16]}
+
+
 def environment() -> dict:
-    """:func:`episcatter.reference.environment` plus Dr.Jit's thread count
-    and the machine load now."""
+    """:func:`episcatter.reference.environment` plus Dr.Jit's thread count,
+    the machine load now and :func:`source_state`."""
     import drjit as dr
 
     env = _base_environment()
+    env.update(source_state())
     env["drjit_threads"] = int(dr.thread_count())
     env["openblas_threads"] = blas_threads()
     env["load_average"] = load_average()
@@ -399,6 +420,6 @@ def pyplot():
 
 __all__ = ["ROOT", "RESULTS", "REFERENCE_STEPS", "BLOCKS", "scene_file", "resolution",
            "exact_reference", "reference_note", "load_average", "summarize",
-           "capture_substages", "blas_threads", "limit_blas_threads", "time_renders", "time_jobs", "describe_error", "build", "load", "errors",
+           "capture_substages", "source_state", "blas_threads", "limit_blas_threads", "time_renders", "time_jobs", "describe_error", "build", "load", "errors",
            "environment", "output_dir", "write_json", "write_csv", "write_text", "fmt",
            "markdown_table", "base_parser", "scenes_of", "repeats_of", "savefig", "pyplot"]
