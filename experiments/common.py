@@ -423,3 +423,35 @@ __all__ = ["ROOT", "RESULTS", "REFERENCE_STEPS", "BLOCKS", "scene_file", "resolu
            "capture_substages", "source_state", "blas_threads", "limit_blas_threads", "time_renders", "time_jobs", "describe_error", "build", "load", "errors",
            "environment", "output_dir", "write_json", "write_csv", "write_text", "fmt",
            "markdown_table", "base_parser", "scenes_of", "repeats_of", "savefig", "pyplot"]
+
+
+def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
+    """The driver both equal-error speedup experiments share: parse the
+    common arguments, run ``module.measure_scene`` on every scene, summarise
+    with ``module.speedups``, and write runs.csv, speedup.csv, speedup.json,
+    table.md (``module.report``) and speedup.png (``module.plot``) under
+    ``results/<module.NAME>/``.  Returns (rows, summary)."""
+    args = base_parser(module.__doc__, module.SCENES, module.QUICK_SCENES).parse_args(argv)
+    s = module.settings_for(args.quick)
+    repeats = repeats_of(args)
+    out = output_dir(module.NAME, args.out, args.quick)
+    rows = []
+    for name in scenes_of(args):
+        rows += module.measure_scene(name, s, repeats, progress=not args.quick)
+        print(f"{name}: done (load {load_average()})", flush=True)
+    summary = module.speedups(rows)
+    text = module.report(rows, summary, s, repeats)
+    print(text)
+    settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": scenes_of(args),
+                "reference": reference_note(s["reference_steps"]),
+                "conventions": {**conventions,
+                                "scattering": "integrator.timings['scattering'] (median)",
+                                "total": "end-to-end mi.render wall time (median)"},
+                "quick": args.quick, **{k: (v(s) if callable(v) else v)
+                                        for k, v in extra_settings.items()}}
+    write_csv(out / "runs.csv", rows)
+    write_csv(out / "speedup.csv", summary)
+    write_json(out / "speedup.json", settings, rows, speedup=summary)
+    write_text(out / "table.md", text)
+    module.plot(out / "speedup.png", rows)
+    return rows, summary

@@ -42,6 +42,8 @@ stages, errors), ``speedup.csv`` (per scene, tree variant and convention),
 """
 from __future__ import annotations
 
+import sys
+
 import math
 
 from . import common as c
@@ -297,31 +299,11 @@ def report(rows, summary, s, repeats) -> str:
 
 
 def main(argv=None):
-    args = c.base_parser(__doc__, SCENES, QUICK_SCENES).parse_args(argv)
-    s = settings_for(args.quick)
-    repeats = c.repeats_of(args)
-    out = c.output_dir(NAME, args.out, args.quick)
-    rows = []
-    for name in c.scenes_of(args):
-        rows += measure_scene(name, s, repeats, progress=not args.quick)
-        print(f"{name}: done (load {c.load_average()})", flush=True)
-    summary = speedups(rows)
-    text = report(rows, summary, s, repeats)
-    print(text)
-    settings = {"name": NAME, **s, "repeats": repeats, "scenes": c.scenes_of(args),
-                "settings": settings_of_run(s), "reference": c.reference_note(s["reference_steps"]),
-                "conventions": {"paper": "raymarch: scattering minus shadow-map build; tree "
-                                         "traced: scattering; tree resampled: scattering minus "
-                                         "raymarch's median shadow-map build",
-                                "scattering": "integrator.timings['scattering'] (median)",
-                                "total": "end-to-end mi.render wall time (median)"},
-                "quick": args.quick}
-    c.write_csv(out / "runs.csv", rows)
-    c.write_csv(out / "speedup.csv", summary)
-    c.write_json(out / "speedup.json", settings, rows, speedup=summary)
-    c.write_text(out / "table.md", text)
-    plot(out / "speedup.png", rows)
-    return rows, summary
+    return c.run_speedup_experiment(
+        sys.modules[__name__], argv,
+        {"paper": "raymarch: scattering minus shadow-map build; tree traced: scattering; "
+                  "tree resampled: scattering minus raymarch's median shadow-map build"},
+        settings=settings_of_run)
 
 
 if __name__ == "__main__":
