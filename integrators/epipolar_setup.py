@@ -399,29 +399,76 @@ def first_blocker(params, origin, d):
         active = ~hit & (b > a)
         ray = mi.Ray3f(origin + d * a, d)
         ray.maxt = dr.maximum(b - a, 0.0)
-        si = params.scene.ray_intersect(ray, active)
-        found = active & si.is_valid()
-        p = dr.select(found, si.p, p)
+        # only the distance is needed: the preliminary intersection skips
+        # computing the full surface interaction
+        pi = params.scene.ray_intersect_preliminary(ray, active=active)
+        found = active & pi.is_valid()
+        p = dr.select(found, ray.o + ray.d * pi.t, p)
         hit |= found
     return hit, p
 
 
-def trace_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, k: int = 1,
-                         seed: int = 0) -> mi.Float:
-    """S = atan2(γ, u_b) of ``k`` sub-rays per light ray, (n·d·k,) lanes in
-    (row, light ray, sub-ray) order; π where nothing blocks the sub-ray.
-    Each sub-ray is traced with Mitsuba from outside the scene along -w_l
-    (:func:`first_blocker`)."""
+#: |second difference| of neighbouring light rays' blocker indices (in
+#: queries) above which a light ray traces its §7 sub-rays
+EDGE_INDEX_JUMP = 2
+
+
+def _blocker_angle(params, queries: EpipolarQueries, s, gamma) -> mi.Float:
+    """atan2(γ, u_b) of the light rays (row s, γ), traced from above the
+    scene along -w_l (:func:`first_blocker`); π where nothing blocks."""
     frame = queries.frame
-    s, gamma = sub_ray_gamma(rays, k, seed)
     U = _light_top(params, frame)
     origin = light_coords_to_world(frame, _row_alpha(queries, s), gamma, U)
     w = mi.Vector3f(*map(float, frame.axis))
     hit, p = first_blocker(params, origin, -w)
     u_b = dr.dot(mi.Vector3f(p - mi.Point3f(point(params.camera.origin))), w)
-    beta_b = dr.select(hit, dr.atan2(gamma, u_b), math.pi)
-    dr.eval(beta_b)
-    return beta_b
+    return dr.select(hit, dr.atan2(gamma, u_b), math.pi)
+
+
+def trace_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, k: int = 1,
+                         seed: int = 0, adaptive: bool = False) -> mi.Float:
+    """S = atan2(γ, u_b) of ``k`` sub-rays per light ray, (n·d·k,) lanes in
+    (row, light ray, sub-ray) order; π where nothing blocks the sub-ray.
+
+    Each sub-ray is traced with Mitsuba from outside the scene along -w_l.
+    With ``adaptive`` (§7's sub-rays only where they can matter): every light ray's
+    centre is traced first; only light rays whose centre blocker index jumps
+    against its neighbours' trend (second difference > ``EDGE_INDEX_JUMP``
+    queries: a blocker edge runs through or next to them) trace their ``k``
+    jittered sub-rays; the others repeat the
+    centre value in all ``k`` slots (one mode of weight 1).  Away from
+    edges this traces one ray per light ray instead of ``k``.  Measured at
+    640×480 against the exact reference: blockers 2.2× / 1.6× / 2.3× faster
+    on nave / grove / terrain, relMSE 1.19e-5 → 1.19e-5 (nave), 4.7e-5 →
+    1.2e-4 (grove: foliage edges between centre samples are missed),
+    2.0e-5 → 2.2e-5 (terrain); hence off by default."""
+    if k == 1 or not adaptive:
+        s, gamma = sub_ray_gamma(rays, k, seed)
+        out = _blocker_angle(params, queries, s, gamma)
+        dr.eval(out)
+        return out
+    s1, gamma1 = sub_ray_gamma(rays, 1, seed)
+    centre = _blocker_angle(params, queries, s1, gamma1)
+    _, g1, _ = rays.lanes(1)
+    idx = searchsorted_rows(queries, s1, centre)
+    lane = dr.arange(mi.UInt32, dr.width(idx))
+    last = rays.d - 1
+    left = dr.gather(mi.UInt32, idx, dr.select(g1 > 0, lane - 1, lane))
+    right = dr.gather(mi.UInt32, idx, dr.select(g1 < last, lane + 1, lane))
+    # a blocker edge = the centre index jumps against the trend of its
+    # neighbours (a smoothly varying blocker, e.g. a floor, is not an edge)
+    curvature = mi.Int32(left) + mi.Int32(right) - 2 * mi.Int32(idx)
+    refine = dr.abs(curvature) > EDGE_INDEX_JUMP
+    s, gamma = sub_ray_gamma(rays, k, seed)
+    owner = dr.arange(mi.UInt32, dr.width(s)) // k
+    out = dr.gather(mi.Float, centre, owner)
+    sel = dr.compress(dr.gather(mi.Bool, refine, owner))
+    if dr.width(sel):
+        sub = _blocker_angle(params, queries, dr.gather(mi.UInt32, s, sel),
+                             dr.gather(mi.Float, gamma, sel))
+        dr.scatter(out, sub, sel)
+    dr.eval(out)
+    return out
 
 
 def shadow_map_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, shadow_map,

@@ -26,7 +26,7 @@ from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_
 from .integrand_svd import SAMPLES, separate_integrand
 from .partial_sum_tree import integrate_slices
 from .epipolar_template import EpipolarIntegrator
-from .template import read_choice, read_number
+from .template import read_bool, read_choice, read_number
 
 
 
@@ -97,6 +97,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     ``prefilter``              sub-rays k per light ray for the depth modes
                                of §7 (default 4; 1 = off, one ray through
                                the light ray's centre)
+    ``adaptive_prefilter``     trace the sub-rays only where the light
+                               rays' centre blockers jump (default false:
+                               2× faster blockers, but misses foliage edges)
     ``rectification``          ``traced`` (default): light rays traced with
                                Mitsuba; ``resampled``: blockers read from an
                                orthographic shadow map (as the paper)
@@ -132,6 +135,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         self.prefilter = read_number(props, "prefilter", 4, minimum=1, maximum=16, integer=True)
         self.rectification = read_choice(props, "rectification", "traced",
                                          ("traced", "resampled"))
+        self.adaptive_prefilter = read_bool(props, "adaptive_prefilter", False)
 
     # -- the method ---------------------------------------------------------------
     def integrate_queries(self, params, cap, queries):
@@ -196,7 +200,8 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     def blocker_angles(self, params, cap, queries, rays):
         if self.rectification == "traced":
-            return trace_blocker_angles(params, queries, rays, self.prefilter)
+            return trace_blocker_angles(params, queries, rays, self.prefilter,
+                                        adaptive=self.adaptive_prefilter)
         shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
         return shadow_map_blocker_angles(params, queries, rays, shadow_map, self.prefilter)
 

@@ -320,3 +320,14 @@ def test_invalid_properties(props):
     # Mitsuba's plugin loader re-raises the constructor's ValueError as RuntimeError
     with pytest.raises((ValueError, RuntimeError), match=f"Property '{next(iter(props))}'"):
         mi.load_dict({"type": "epipolar_tree", **props})
+
+
+def test_adaptive_prefilter_stays_close_to_full_prefilter():
+    """adaptive_prefilter traces sub-rays only at blocker edges: on a small
+    scene with a sphere and a floor it must stay close to tracing them all."""
+    scene = mi.load_dict(scene_dict(res=(32, 24)))
+    full = np.array(mi.load_dict({"type": "epipolar_tree"}).render_layers(scene)["full"])
+    fast = np.array(mi.load_dict({"type": "epipolar_tree", "adaptive_prefilter": True})
+                    .render_layers(scene)["full"])
+    assert np.all(np.isfinite(fast))
+    assert relmse(fast, full) < 1e-3
