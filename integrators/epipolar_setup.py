@@ -116,14 +116,16 @@ PAD_BETA = 4.0
 # Frame and slices (§3, §8)
 # --------------------------------------------------------------------------
 
-def require_directional(params, method: str) -> None:
-    """Refuse (ValueError) what is not implemented instead of rendering it wrong."""
+def require_directional(params, method: str,
+                        missing: str = "Baran 2010 §9 point/spot lights") -> None:
+    """Refuse (ValueError) what is not implemented instead of rendering it
+    wrong; ``missing`` names the paper part that would handle the light."""
     kind = params.light.kind
     if kind != "directional":
         raise ValueError(
             f"{method}: the scene's light is a {kind} light, but only directional "
-            f"lights are supported by {method} so far (Baran 2010 §9 point/spot "
-            "lights are not implemented); render this scene with raymarch.")
+            f"lights are supported by {method} so far ({missing} are not "
+            "implemented); render this scene with raymarch.")
 
 
 def epipolar_frame_of(params) -> EpipolarFrame:

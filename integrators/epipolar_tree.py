@@ -139,70 +139,55 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     # -- the method ---------------------------------------------------------------
     def integrate_queries(self, params, cap, queries):
-        sweep = (self.sweep_queries if params.light.kind == "directional"
-                 else self.sweep_local_queries)
-        return sweep(params, cap, queries)
+        return self.sweep_queries(params, cap, queries)
 
     def sweep_queries(self, params, cap, queries):
-        """L_scat of every query (§3-§7)."""
+        """L_scat of every query (§3-§7; point/spot lights: §9,
+        :mod:`integrators.epipolar_local_light`)."""
+        local = params.light.kind != "directional"
         with self.stage("rectify") as keep:
-            rays = light_ray_grid(params, queries, self.light_rays)
+            if local:
+                t_end_max = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
+                rays = local_light_ray_grid(params, queries, self.light_rays, t_end_max)
+                L, colour, lit = light_ray_factor(params, queries, rays, self.prefilter)
+            else:
+                rays = light_ray_grid(params, queries, self.light_rays)
+                L, colour, lit = light_side_factor(params, queries, rays), None, None
             D = rectified_depth(queries, rays)
-            L = light_side_factor(params, queries, rays)
             keep.extend([D.array, L.array])
         with self.stage("blockers") as keep:
-            beta_b = self.blocker_angles(params, cap, queries, rays)
+            beta_b = self.blocker_angles(params, cap, queries, rays, lit)
             modes = blocker_modes(queries, rays, beta_b, self.prefilter)
             keep.extend([modes.beta, modes.weight])
         with self.stage("svd") as keep:
-            A, B = separated_kernel(params, queries, rays, self.svd_rank, self.svd_tolerance)
-            keep.extend([A, B])
-        with self.stage("sweep") as keep:
-            integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count))
-            keep.append(integral)
-        with self.stage("unrectify") as keep:
-            terms = directional_query_terms(params, cap, queries, rays,
-                                            first_leaf_visibility(queries, modes))
-            value = assemble_queries(terms, gather_queries(queries, integral))
-            keep.append(value)
-        return value
-
-    def sweep_local_queries(self, params, cap, queries):
-        """L_scat of every query of a point or spot light (§9,
-        :mod:`integrators.epipolar_local_light`)."""
-        with self.stage("rectify"):
-            t_end_max = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
-            rays = local_light_ray_grid(params, queries, self.light_rays, t_end_max)
-            D = rectified_depth(queries, rays)
-            L, colour, lit = light_ray_factor(params, queries, rays, self.prefilter)
-        with self.stage("blockers") as keep:
-            if self.rectification == "traced":
-                beta_b = trace_local_blocker_angles(params, queries, rays, self.prefilter, lit=lit)
-            else:
-                shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-                beta_b = shadow_map_local_blocker_angles(params, queries, rays, shadow_map,
-                                                         self.prefilter)
-            modes = blocker_modes(queries, rays, beta_b, self.prefilter)
-            keep.extend([modes.beta, modes.weight])
-        with self.stage("svd") as keep:
-            A, B = local_separated_kernel(params, queries, rays, self.svd_rank, self.svd_tolerance)
+            separate = local_separated_kernel if local else separated_kernel
+            A, B = separate(params, queries, rays, self.svd_rank, self.svd_tolerance)
             keep.extend([A, B])
         with self.stage("sweep") as keep:
             integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count),
-                                        d_count=mi.Int32(rays.d_count))
+                                        d_count=mi.Int32(rays.d_count) if local else None)
             keep.append(integral)
         with self.stage("unrectify") as keep:
-            terms = local_query_terms(params, cap, queries, rays, colour,
-                                      first_leaf_visibility(queries, modes))
+            V0 = first_leaf_visibility(queries, modes)
+            terms = (local_query_terms(params, cap, queries, rays, colour, V0) if local
+                     else directional_query_terms(params, cap, queries, rays, V0))
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.append(value)
         return value
 
-    def blocker_angles(self, params, cap, queries, rays):
+    def blocker_angles(self, params, cap, queries, rays, lit=None):
+        """The blocker map S (§3, §7 sub-rays): traced with Mitsuba, or read
+        from a classic shadow map (``rectification="resampled"``)."""
+        local = params.light.kind != "directional"
         if self.rectification == "traced":
+            if local:
+                return trace_local_blocker_angles(params, queries, rays, self.prefilter, lit=lit)
             return trace_blocker_angles(params, queries, rays, self.prefilter,
                                         adaptive=self.adaptive_prefilter)
         shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
+        if local:
+            return shadow_map_local_blocker_angles(params, queries, rays, shadow_map,
+                                                   self.prefilter)
         return shadow_map_blocker_angles(params, queries, rays, shadow_map, self.prefilter)
 
     def to_string(self):

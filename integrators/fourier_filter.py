@@ -19,7 +19,8 @@ import numpy as np
 from .capture import capture_shadow_map
 from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
                              directional_query_terms, gray, light_ray_grid, light_side_factor,
-                             shadow_map_blocker_angles, trace_blocker_angles)
+                             require_directional, shadow_map_blocker_angles,
+                             trace_blocker_angles)
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
@@ -164,7 +165,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
 
     # -- the method ---------------------------------------------------------------
     def check_light(self, params):
-        require_directional_light(params)
+        require_directional(params, "fourier_filter", "Klehm 2014 §3.2 local lights")
 
     def integrate_queries(self, params, cap, queries):
         """L_scat of every query (§3, Listing 4)."""
@@ -274,16 +275,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
 # --------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------
-
-def require_directional_light(params) -> None:
-    """Refuse point and spot lights instead of rendering them wrong."""
-    kind = params.light.kind
-    if kind != "directional":
-        raise ValueError(
-            f"fourier_filter: the scene's light is a {kind} light, but only directional "
-            "lights are supported by fourier_filter so far (Klehm 2014 §3.2 local "
-            "lights are not implemented); render this scene with raymarch.")
-
 
 #: default texels per row: this many times epipolar_tree's light rays ...
 TEXEL_FACTOR = 4
