@@ -455,3 +455,24 @@ def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     write_text(out / "table.md", text)
     module.plot(out / "speedup.png", rows)
     return rows, summary
+
+
+def scene_with_reference(name: str, s: dict, progress: bool, **defines):
+    """(scene, exact reference image, its info) of suite scene ``name`` at
+    ``s['width']``×``s['height']`` (plus ``defines``), the reference made
+    with ``s['reference_steps']`` (cached)."""
+    path = scene_file(name)
+    defines = {**resolution(s["width"], s["height"]), **defines}
+    ref, info = exact_reference(path, defines, s["reference_steps"], progress=progress)
+    return load(path, defines), ref, info
+
+
+def style_loglog(ax, title: str, xlabel: str, ylabel: str) -> None:
+    """The log-log time/error axes every experiment plot uses."""
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6)

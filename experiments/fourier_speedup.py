@@ -261,13 +261,8 @@ def plot(path, rows: list[dict]) -> None:
         for r, m in zip((r for r in ok if r["setting"] in FILTERS), "*D"):
             ax.plot([r["paper_s"]], [r["relmse_b1"]], m, ms=8, label=r["setting"])
             ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(scene, fontsize=9)
-        ax.set_xlabel("time [s] ('paper': shadow maps excluded)", fontsize=8)
-        ax.set_ylabel("relMSE vs exact", fontsize=8)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6)
+        c.style_loglog(ax, scene, "time [s] ('paper': shadow maps excluded)",
+                        "relMSE vs exact")
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
     c.savefig(fig, path)

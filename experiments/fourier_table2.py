@@ -186,10 +186,7 @@ def memory_mb(rows: int, texels: int, M: int) -> float:
 
 def measure(scene_name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
     """Every setting of :func:`runs_of` on one scene: times, memory, errors."""
-    path = c.scene_file(scene_name)
-    defines = c.resolution(s["width"], s["height"])
-    ref, info = c.exact_reference(path, defines, s["reference_steps"], progress=progress)
-    scene = c.load(path, defines)
+    scene, ref, info = c.scene_with_reference(scene_name, s, progress)
     runs = runs_of(s)
     integs = {label: c.build("fourier_filter", props) for label, props in runs.items()}
     logs, contexts = recorder_contexts(runs)

@@ -96,10 +96,7 @@ def measure_scene(scene_name: str, s: dict, repeats: int, progress: bool,
     """One row per method on one scene: errors at block 1 and 2, black-pixel
     leaks and times; ``maps`` (if given) receives the reference and the
     error maps of the MAPPED methods."""
-    path = c.scene_file(scene_name)
-    defines = c.resolution(s["width"], s["height"])
-    ref, info = c.exact_reference(path, defines, s["reference_steps"], progress=progress)
-    scene = c.load(path, defines)
+    scene, ref, info = c.scene_with_reference(scene_name, s, progress)
     integs = {label: c.build(kind, method_params(kind, props, s))
               for label, kind, props in METHODS}
     load_before = c.load_average()

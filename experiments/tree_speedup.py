@@ -98,10 +98,7 @@ def settings_of_run(s: dict) -> dict:
 
 def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
     """Every setting on one scene: times, stages and errors (one row each)."""
-    path = c.scene_file(name)
-    defines = c.resolution(s["width"], s["height"])
-    ref, info = c.exact_reference(path, defines, s["reference_steps"], progress=progress)
-    scene = c.load(path, defines)
+    scene, ref, info = c.scene_with_reference(name, s, progress)
     settings = settings_of_run(s)
     integs = {label: c.build(kind, props) for label, (kind, props) in settings.items()}
     load_before = c.load_average()
@@ -268,13 +265,8 @@ def plot(path, rows: list[dict]) -> None:
         for r, m in zip((r for r in ok if r["integrator"] == "epipolar_tree"), "sDv^"):
             ax.plot([r["paper_s"]], [r["relmse_b1"]], m, label=r["setting"])
             ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(scene, fontsize=9)
-        ax.set_xlabel("scattering time [s] ('paper' convention)", fontsize=8)
-        ax.set_ylabel("relMSE vs exact (block 1)", fontsize=8)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6)
+        c.style_loglog(ax, scene, "scattering time [s] ('paper' convention)",
+                        "relMSE vs exact (block 1)")
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
     c.savefig(fig, path)
