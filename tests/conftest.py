@@ -1,6 +1,8 @@
 """Shared test fixtures: a small scene factory built with mi.load_dict."""
 import integrators  # noqa: F401  (sets the variant, registers plugins)
 import mitsuba as mi
+import csv
+
 import pytest
 
 T = mi.ScalarTransform4f
@@ -52,3 +54,16 @@ def make_scene():
     def make(**kw):
         return mi.load_dict(scene_dict(**kw))
     return make
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """References made by a test go to a temporary cache."""
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("EPISCATTER_CACHE", str(folder))
+    return folder
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))

@@ -1,6 +1,5 @@
 """The experiment scripts: helpers, and each ``--quick`` mode end to end
 (tiny images, their own reference cache in a temporary folder)."""
-import csv
 import json
 import math
 
@@ -8,18 +7,7 @@ import numpy as np
 import pytest
 
 from experiments import common, stability, tree_accuracy, tree_scaling, tree_speedup
-
-
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    folder = tmp_path / "cache"
-    monkeypatch.setenv("EPISCATTER_CACHE", str(folder))
-    return folder
-
-
-def read_csv(path):
-    with open(path) as f:
-        return list(csv.DictReader(f))
+from tests.conftest import read_csv
 
 
 def check_outputs(folder, names):

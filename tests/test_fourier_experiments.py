@@ -1,6 +1,5 @@
 """The fourier_* experiments: their --quick runs write complete outputs, and
 the small helpers they are built from do what they say."""
-import csv
 import json
 import math
 
@@ -9,19 +8,7 @@ import pytest
 
 from experiments import (fourier_scene_independence, fourier_speedup, fourier_table2,
                          fourier_weights)
-
-
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    """References of the quick runs go to a temporary cache."""
-    folder = tmp_path / "cache"
-    monkeypatch.setenv("EPISCATTER_CACHE", str(folder))
-    return folder
-
-
-def read_csv(path):
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+from tests.conftest import read_csv
 
 
 def read_json(path):
