@@ -37,12 +37,9 @@ def build_parser():
 
 
 def user_error(err: BaseException) -> BaseException:
-    """The error a user should see: mi.render wraps ValueErrors raised inside
-    an integrator in a RuntimeError ('error while performing a custom
-    differentiable operation')."""
-    while isinstance(err, RuntimeError) and isinstance(err.__cause__, Exception):
-        err = err.__cause__
-    return err
+    """The error a user should see (see :func:`episcatter.scene_loading.unwrap_render_error`)."""
+    from .scene_loading import unwrap_render_error
+    return unwrap_render_error(err)
 
 
 def main(argv=None) -> int:

@@ -38,7 +38,7 @@ import numpy as np
 
 from . import metrics
 from .imageio import read_exr, write_exr
-from .scene_loading import load_scene, make_integrator, scene_key
+from .scene_loading import load_scene, make_integrator, scene_key, unwrap_render_error
 
 KINDS = ("volpath", "exact")
 DEFAULT_SPP = {"volpath": 4096, "exact": 16}
@@ -148,24 +148,6 @@ def _str_defines(defines) -> dict:
 # --------------------------------------------------------------------------
 # Rendering helpers (also used by episcatter.bench)
 # --------------------------------------------------------------------------
-
-def unwrap_render_error(exc: BaseException) -> BaseException:
-    """The user-facing cause of a ``mi.render`` failure.
-
-    ``mi.render`` runs the integrator inside a Dr.Jit custom op, so a
-    ``ValueError`` raised by an integrator (e.g. an unsupported scene)
-    arrives as the ``__cause__`` of a ``RuntimeError``.  Returns that
-    ``ValueError`` if there is one in the cause chain, else ``exc``.
-    """
-    seen = set()
-    cur = exc
-    while cur is not None and id(cur) not in seen:
-        if isinstance(cur, ValueError):
-            return cur
-        seen.add(id(cur))
-        cur = cur.__cause__ or cur.__context__
-    return exc
-
 
 def render_rgb(scene, integrator, spp: int = 0, seed: int = 0) -> np.ndarray:
     """``mi.render`` to a finished (H, W, 3) float32 NumPy image.

@@ -14,6 +14,17 @@ import integrators  # noqa: F401  (registers our plugins, checks LLVM)
 import mitsuba as mi
 
 
+def unwrap_render_error(err: BaseException) -> BaseException:
+    """The error a user should see: ``mi.render`` runs the integrator inside
+    a Dr.Jit custom operation, so a ``ValueError`` raised in ``render()``
+    (e.g. an unsupported scene) arrives as the ``__cause__`` of a
+    ``RuntimeError`` ('error while performing a custom differentiable
+    operation').  Follows that chain to the first non-RuntimeError."""
+    while isinstance(err, RuntimeError) and isinstance(err.__cause__, Exception):
+        err = err.__cause__
+    return err
+
+
 def parse_value(text: str):
     """'true'/'false' -> bool, integers -> int, floats -> float, else str."""
     low = text.strip().lower()
