@@ -101,7 +101,7 @@ from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, alpha_to_slice, make_slices
 
 from .capture import CameraCapture
-from .light_transport import (BOX_EPS, _slabs, color, phase_eval, point, sample_light,
+from .light_transport import (_slabs, box_segments, color, phase_eval, point, sample_light,
                               segment_box, segment_weight)
 from .partial_sum_tree import BlockerModes
 from .raymarch import auto_spacing, march
@@ -393,11 +393,9 @@ def first_blocker(params, origin, d):
     ~1e-4·extent/tan(angle)."""
     inf = dr.full(mi.Float, dr.inf, dr.width(origin.x))
     _, t_in, t_out = segment_box(params, origin, d, inf)
-    eps = BOX_EPS * params.scene_extent
     hit = mi.Bool(False)
     p = mi.Point3f(origin)
-    for a, b in ((mi.Float(0.0), t_in - eps), (t_in + eps, t_out - eps),
-                 (t_out + eps, dr.largest(mi.Float))):
+    for a, b in box_segments(params, t_in, t_out, inf):
         active = ~hit & (b > a)
         ray = mi.Ray3f(origin + d * a, d)
         ray.maxt = dr.maximum(b - a, 0.0)

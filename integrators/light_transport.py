@@ -77,22 +77,24 @@ def light_transmittance(params, tau):
     return dr.exp(-color(params.medium.sigma_t) * tau)
 
 
-def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
-    """Ray-traced V(x): True unless a non-null surface blocks ``x`` -> light.
-
-    ``ray_test`` counts the null-BSDF medium box as an occluder, so the
-    segment is tested in up to three pieces split at the box crossings
-    ``t_in``/``t_out`` (from :func:`segment_box`), each stopped ``BOX_EPS``
-    (relative to the scene size) short of the box."""
+def box_segments(params, t_in, t_out, dist):
+    """The pieces ``[a, b]`` of the segment ``[0, dist]`` (``dist`` may be
+    inf) outside, inside and beyond the medium box (crossings ``t_in`` /
+    ``t_out`` from :func:`segment_box`), each stopped ``BOX_EPS`` (relative
+    to the scene size) short of the box: ray queries count the null-BSDF
+    box as a surface.  Empty pieces have ``b <= a``."""
     eps = BOX_EPS * params.scene_extent
     far = dr.select(dr.isinf(dist), dr.largest(mi.Float), dist * (1 - BOX_EPS))
+    return ((mi.Float(0.0), t_in - eps),
+            (dr.select(t_in > 0, t_in + eps, 0.0), dr.select(t_out < dist, t_out - eps, far)),
+            (t_out + eps, far))
+
+
+def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
+    """Ray-traced V(x): True unless a non-null surface blocks ``x`` -> light,
+    tested piecewise around the medium box (:func:`box_segments`)."""
     blocked = mi.Bool(False)
-    for a, b, a_on_box in ((mi.Float(0.0), t_in - eps, False),
-                           (t_in, t_out, True),
-                           (t_out + eps, far, False)):
-        if a_on_box:
-            a = dr.select(t_in > 0, t_in + eps, 0.0)
-            b = dr.select(t_out < dist, t_out - eps, far)
+    for a, b in box_segments(params, t_in, t_out, dist):
         ray = dr.zeros(mi.Ray3f)
         ray.o, ray.d = x + wo * a, wo
         ray.maxt = dr.maximum(b - a, 0.0)
