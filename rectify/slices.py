@@ -237,6 +237,34 @@ def _alpha_table(slices: Slices) -> np.ndarray:
     return np.append(a, a[0] + 2 * np.pi) if slices.wraps else a
 
 
+#: lookup bins per table entry of :func:`_first_above`
+BINS_PER_SLICE = 8
+
+
+def _first_above(table_np: np.ndarray, table, alpha) -> mi.UInt32:
+    """Per lane, the first i in [0, n − 1) with table[i] > alpha, or n − 1
+    (what a binary search over the sorted table gives), found from a
+    uniform bin grid over the table's range: each bin stores how many
+    entries lie at or below its start (one bin early, so float rounding of
+    the bin index cannot overshoot), then a short forward scan."""
+    n = len(table_np)
+    t32 = np.asarray(table_np, np.float32).astype(np.float64)
+    bins = BINS_PER_SLICE * n
+    lo, width = t32[0], max((t32[-1] - t32[0]) / bins, 1e-30)
+    starts = lo + width * np.arange(bins)
+    first = np.minimum(np.searchsorted(t32, starts, side="right"), n - 1)
+    first = np.concatenate([[0], first[:-1]])               # one bin early
+    b = mi.UInt32(dr.clip(dr.floor((alpha - float(lo)) * float(1.0 / width)), 0, bins - 1))
+    i = dr.gather(mi.UInt32, mi.UInt32(first.astype(np.uint32)), b)
+    last = n - 1
+
+    def more(i):
+        return (i < last) & (dr.gather(mi.Float, table, dr.minimum(i, last)) <= alpha)
+
+    i = dr.while_loop(state=(i,), cond=more, body=lambda i: (i + 1,))[0]
+    return i
+
+
 def alpha_to_slice(slices: Slices, alpha):
     """Fractional slice coordinates of angles ``alpha`` (Dr.Jit):
     ``(k0, k1, f)`` with ``alpha`` a fraction ``f`` of the way from slice
@@ -251,7 +279,7 @@ def alpha_to_slice(slices: Slices, alpha):
     a0 = dr.gather(mi.Float, table, 0)
     if slices.wraps:
         alpha = dr.select(alpha < a0, alpha + 2 * math.pi, alpha)
-    idx = dr.binary_search(0, n - 1, lambda i: dr.gather(mi.Float, table, i) <= alpha)
+    idx = _first_above(table_np, table, alpha)
     k0 = dr.clip(mi.Int32(idx) - 1, 0, n - 2)
     k0 = mi.UInt32(k0)
     k1 = k0 + 1

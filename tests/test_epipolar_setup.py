@@ -123,6 +123,32 @@ def test_traced_blocker_map_against_ray_oracle(light):
     np.testing.assert_allclose(beta_b[both], expected[both], atol=2e-4)
 
 
+@pytest.mark.parametrize("light", [None, "on_screen"])
+def test_adaptive_blocker_angles_match_traced_sub_rays(light):
+    """adaptive: sub-rays interpolated between traced interval boundaries
+    where the blockers are smooth land in the same depth mode (row
+    searchsorted index) as tracing every sub-ray; the floor is a plane, so
+    its interpolated angles are exact."""
+    params, cap, frame, sl, q = setup(on_screen_light() if light else None)
+    k, d = 4, 48
+    rays = es.light_ray_grid(params, q, d)
+    full = es.trace_blocker_angles(params, q, rays, k=k)
+    fast = es.trace_blocker_angles(params, q, rays, k=k, adaptive=True)
+    s, _, _ = rays.lanes(k)
+    same = np.array(es.searchsorted_rows(q, s, full)) == np.array(es.searchsorted_rows(q, s, fast))
+    assert same.mean() > 0.995, same.mean()
+    a, b = np.array(full), np.array(fast)
+    assert np.all(np.isfinite(b)) and np.all((b >= 0) & (b <= np.pi))
+    both = (a < np.pi) & (b < np.pi)
+    assert np.quantile(np.abs(a - b)[both], 0.95) < 1e-4
+    # the index bounds of the interpolated sub-rays only shorten the search
+    bounded = es.trace_sub_ray_blockers(params, q, rays, k=k, adaptive=True)
+    assert bounded.lo is not None
+    with_bounds, without = (es.blocker_modes(q, rays, x, k) for x in (bounded, bounded.angle))
+    np.testing.assert_array_equal(np.array(with_bounds.beta), np.array(without.beta))
+    np.testing.assert_array_equal(np.array(with_bounds.weight), np.array(without.weight))
+
+
 def test_blocker_modes_are_row_searchsorted():
     """Blocker β -> view-ray index = number of the row's queries with β_q ≤ β_b."""
     params, cap, frame, sl, q = setup(on_screen_light())
@@ -469,3 +495,43 @@ def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t)
         errs.append(np.linalg.norm(approx - exact) / np.linalg.norm(exact))
     assert len(errs) > 20, len(errs)
     assert np.median(errs) < 10 * tol and max(errs) < 1e-2, (np.median(errs), max(errs))
+
+
+@pytest.mark.parametrize("coloured", [False, True])
+def test_last_interval_correction_against_numpy(coloured):
+    """Sweep + :func:`es.last_interval_correction` = the direct sum of Eq. 3
+    with the visibility of each view ray's last leaf k0 = ⌊D⌋ replaced by
+    the query's own V (here random 0/1), the coverage weights unchanged."""
+    from integrators.partial_sum_tree import integrate_slices, random_problem
+    n, d, r, N = 3, 8, 6, 2
+    D, S, A, B, L = random_problem(n, d, r, N, seed=3, modes=2)
+    if coloured:
+        A = np.stack([A, 0.5 * A, 2 * A], axis=2)              # (1, d, 3, N)
+    rng = np.random.default_rng(1)
+    q = es.EpipolarQueries(None, None, n, r, None, None, None, mi.UInt32(np.arange(n * r)),
+                           mi.UInt32(np.repeat(np.arange(n), r)),
+                           mi.UInt32(np.tile(np.arange(r), n)), None, None, None, None, n * r)
+    modes = BlockerModes(mi.TensorXf(S.beta), mi.TensorXf(S.weight))
+    Dc = np.clip(D, 0, d)
+    k0 = np.minimum(np.floor(Dc), d - 1).astype(np.int64)
+    f = (Dc - k0).astype(np.float32)
+    V_leaf = es.leaf_visibility(q, modes, mi.UInt32(k0.ravel()))
+    V_new = rng.integers(0, 2, n * r).astype(np.float32)
+    last = es.LastInterval(mi.UInt32(k0.ravel()), mi.Float(f.ravel()), V_leaf,
+                           mi.Float(V_new), mi.UInt32(np.arange(n * r)))
+    At, Bt, Lt = mi.TensorXf(A), mi.TensorXf(B), mi.TensorXf(L)
+    got = es.gather_queries(q, integrate_slices(mi.TensorXf(D), modes, At, Bt, L=Lt))
+    got = np.array(got + es.last_interval_correction(q, At, Bt, Lt, last)).T    # (Q, 3)
+
+    # NumPy: V[s, β, γ] from the modes (applied from ⌈β_m⌉ on), last leaf replaced
+    onset = np.ceil(S.beta)                                         # (n, d, M)
+    acts = onset[:, None, :, :] <= np.arange(r)[None, :, None, None]
+    V = 1.0 - (acts * S.weight[:, None]).sum(-1)                     # (n, r, d)
+    s_idx, b_idx = np.divmod(np.arange(n * r), r)
+    np.testing.assert_allclose(np.array(V_leaf), V[s_idx, b_idx, k0.ravel()], atol=1e-6)
+    V[s_idx, b_idx, k0.ravel()] = V_new
+    cover = np.clip(Dc[..., None] - np.arange(d), 0.0, 1.0)         # (n, r, d)
+    A4 = A if coloured else A[:, :, None, :]                         # (1, d, C, N)
+    leaf = A4[0][None] * L[:, :, None, None]                         # (n, d, C, N)
+    want = np.einsum("sbg,sgcn,bn->sbc", V * cover, leaf, B[0]).reshape(n * r, -1)
+    np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=1e-4, atol=1e-5)

@@ -147,3 +147,21 @@ def test_baran_slice_counts_1280x960(where, epipole, expect):
           f"saving {100 * saving:.1f}%, max distance sinh {dist_s:.4f} px, uniform {dist_u:.4f} px")
     assert expect[0] <= saving <= expect[1]
     assert dist_s <= 0.5 + F32 and dist_u <= 0.5 + F32
+
+
+@pytest.mark.parametrize("wraps", [False, True])
+def test_first_above_matches_binary_search(wraps):
+    """The binned lookup of alpha_to_slice = a binary search over the sorted
+    table: random angles, the table's own entries (ties), values just
+    beside them and outside the range; sinh-like uneven spacing."""
+    from rectify.slices import _first_above
+    rng = np.random.default_rng(3)
+    table = np.sort(np.sinh(rng.uniform(-3, 3, 300)) * 0.2).astype(np.float32)
+    if wraps:
+        table = np.append(table, np.float32(table[0] + 2 * np.pi))
+    alpha = np.concatenate([rng.uniform(table[0] - 1, table[-1] + 1, 5000), table,
+                            np.nextafter(table, np.float32(-10)),
+                            np.nextafter(table, np.float32(10))]).astype(np.float32)
+    got = np.array(_first_above(table, mi.Float(table), mi.Float(alpha)))
+    expected = np.minimum(np.searchsorted(table, alpha, side="right"), len(table) - 1)
+    np.testing.assert_array_equal(got, expected)
