@@ -171,21 +171,24 @@ def limit_blas_threads(n: int):
 
 
 def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
-                 progress: bool = False, contexts: dict | None = None) -> dict:
+                 progress: bool = False, contexts: dict | None = None,
+                 warm_up: bool = True) -> dict:
     """Warm-up + ``repeats`` interleaved timed renders of each integrator on
     one scene: :func:`time_jobs` with ``{label: (scene, integrator)}``."""
     return time_jobs({label: (scene, integ) for label, integ in integrators.items()},
-                     repeats, spp, progress, contexts)
+                     repeats, spp, progress, contexts, warm_up)
 
 
 def time_jobs(jobs: dict, repeats: int = 3, spp: int = 0, progress: bool = False,
-              contexts: dict | None = None) -> dict:
+              contexts: dict | None = None, warm_up: bool = True) -> dict:
     """Warm-up + ``repeats`` interleaved timed renders of each job.
 
     ``jobs`` maps a label to ``(scene, integrator)``.  Returns, per label,
     :func:`summarize` plus ``image`` (the last render) or, if rendering
     failed, ``{"error": message}``.  Rounds are interleaved (job A, B, C, A,
     B, C, ...) so load changes on a shared machine hit every job alike.
+    ``warm_up=False`` times the first render too (for runs of tens of
+    seconds, where kernel compilation is negligible).
     ``contexts`` maps labels to a callable returning a context manager that
     wraps each of that job's renders (e.g. ``lambda:
     limit_blas_threads(1)``)."""
@@ -202,15 +205,20 @@ def time_jobs(jobs: dict, repeats: int = 3, spp: int = 0, progress: bool = False
 
     state = {}
     for label in jobs:
+        state[label] = {"first": math.nan, "times": [], "stages": [], "image": None}
+        if not warm_up:
+            continue
         try:
-            _, first, _ = once(label)
-            state[label] = {"first": first, "times": [], "stages": [], "image": None}
+            _, state[label]["first"], _ = once(label)
         except Exception as exc:  # noqa: BLE001 -- recorded, the others go on
             state[label] = {"error": describe_error(exc)}
-    live = [k for k in jobs if "error" not in state[k]]
     for _ in tqdm(range(int(repeats)), desc="timed rounds", disable=not progress):
-        for label in live:
-            img, seconds, stages = once(label)
+        for label in [k for k in jobs if "error" not in state[k]]:
+            try:
+                img, seconds, stages = once(label)
+            except Exception as exc:  # noqa: BLE001 -- recorded, the others go on
+                state[label] = {"error": describe_error(exc)}
+                continue
             s = state[label]
             s["times"].append(seconds)
             s["stages"].append(stages)

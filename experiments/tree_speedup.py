@@ -10,18 +10,29 @@ for similar quality"), with the visual match replaced by a measured one:
    at the pixel centres, :func:`experiments.common.exact_reference`) this
    gives its time/error curve;
 2. ``epipolar_tree`` runs at its defaults (``traced``: light rays traced by
-   Mitsuba) and with ``rectification=resampled`` from a shadow map of the
-   *same* resolution as the ray marcher's (the paper's setting: "both
-   algorithms use a 4096x4096 shadow map");
+   Mitsuba), with half the automatic light rays (a faster, coarser point
+   of its own time/error curve), and with ``rectification=resampled`` from
+   a shadow map of the *same* resolution as the ray marcher's (the paper's
+   setting: "both algorithms use a 4096x4096 shadow map");
 3. the ray marcher's time at the tree's relMSE is interpolated log-log
    between the two sweep settings that bracket it; speedup = that time / the
    tree's time.  If even 2048 steps do not reach the tree's error, the
    speedup is a lower bound (``>=``, time at 2048 steps); if 16 steps are
    already better, an upper bound (``<=``).
+4. A second baseline, ``raymarch visibility=exact`` (32, 128, 512 steps,
+   one run each): the ray marcher with the traced tree's own, ray-traced
+   visibility.  The shadow-mapped marcher's relMSE has a floor set by its
+   map (2048²: ~7e-6 on the nave) that the traced tree goes below, so
+   against it the speedup of the traced tree is only a lower bound.
+
+Context: Baran's 17-120x are against a single-threaded scalar ray marcher
+(§10.1); against a GPU ray marcher on the same GPU the paper reports 3.6x
+(SIBENIK) and 4.1x (TREES) (§10.2).  Our baseline is the Dr.Jit ray
+marcher: SIMD-vectorised on every core, like the paper's GPU one.
 
 Time conventions (all medians of 3 warm runs after a warm-up, interleaved
-rounds in one process, Dr.Jit on every core; camera capture excluded from
-the first two):
+rounds in one process, Dr.Jit on every core, OpenBLAS on one thread; the
+exact ray marcher: one run; camera capture excluded from the first two):
 
 ``paper``  (Baran §10: "do not include the time taken by [the depth and
     shadow maps'] construction"): raymarch = its scattering stage minus the
@@ -61,35 +72,36 @@ TARGET = {"nave_offscreen": 50, "nave_onscreen": 50, "grove": 150}
 
 
 def settings_for(quick: bool) -> dict:
-    """Resolution, sweep and shadow-map size (``--quick``: tiny)."""
+    """Resolution, sweeps and shadow-map size (``--quick``: tiny)."""
     if quick:
-        return {"width": 80, "height": 60, "steps": [4, 16, 64], "shadowmap_resolution": 256,
-                "reference_steps": 256}
+        return {"width": 80, "height": 60, "steps": [4, 16, 64], "exact_steps": [8],
+                "shadowmap_resolution": 256, "reference_steps": 256, "half_light_rays": 50}
     return {"width": 1280, "height": 960, "steps": [16, 32, 64, 128, 256, 512, 1024, 2048],
-            "shadowmap_resolution": 2048, "reference_steps": c.REFERENCE_STEPS}
-
-
-#: settings whose renders run with OpenBLAS limited to one thread
-BLAS_1 = "tree traced, BLAS 1 thread"
+            "exact_steps": [32, 128, 512], "shadowmap_resolution": 2048,
+            "reference_steps": c.REFERENCE_STEPS, "half_light_rays": 800}
 
 
 def settings_of_run(s: dict) -> dict:
-    """label -> (integrator type, properties) of every measured setting.
-
-    ``BLAS_1`` is the default tree again, with NumPy's OpenBLAS limited to
-    one thread during its renders (:func:`experiments.common.limit_blas_threads`):
-    on this 2-core machine shared with other jobs, OpenBLAS's spinning
-    worker threads can turn the 64x64 SVD of the ``svd`` stage from
-    ~0.3 ms into tens or hundreds of ms."""
+    """label -> (integrator type, properties) of every setting timed with
+    ``repeats`` warm runs: the trees and the shadow-mapped ray marcher."""
     sm = s["shadowmap_resolution"]
     out = {"tree traced": ("epipolar_tree", {}),
-           BLAS_1: ("epipolar_tree", {}),
+           "tree traced, half light rays": ("epipolar_tree",
+                                            {"light_rays": s["half_light_rays"]}),
            "tree resampled": ("epipolar_tree", {"rectification": "resampled",
                                                 "shadowmap_resolution": sm})}
     for n in s["steps"]:
         out[f"raymarch {n}"] = ("raymarch", {"visibility": "shadowmap", "steps": n,
                                              "shadowmap_resolution": sm})
     return out
+
+
+def exact_settings_of_run(s: dict) -> dict:
+    """The ray marcher with exact (ray-traced) visibility, the same
+    visibility as the traced tree: one timed run each, no warm-up (tens of
+    seconds a run at 1280x960, kernel compilation < 2 % of it)."""
+    return {f"raymarch exact {n}": ("raymarch", {"visibility": "exact", "steps": n})
+            for n in s["exact_steps"]}
 
 
 # --------------------------------------------------------------------------
@@ -99,25 +111,31 @@ def settings_of_run(s: dict) -> dict:
 def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
     """Every setting on one scene: times, stages and errors (one row each)."""
     scene, ref, info = c.scene_with_reference(name, s, progress)
-    settings = settings_of_run(s)
-    integs = {label: c.build(kind, props) for label, (kind, props) in settings.items()}
     load_before = c.load_average()
-    timed = c.time_renders(scene, integs, repeats=repeats, progress=progress,
-                           contexts={BLAS_1: lambda: c.limit_blas_threads(1)})
-    load_after = c.load_average()
+    groups = [(settings_of_run(s), repeats, True), (exact_settings_of_run(s), 1, False)]
     rows = []
-    for label, (kind, props) in settings.items():
-        t = timed[label]
-        row = {"scene": name, "setting": label, "integrator": kind, "params": props,
-               "blas_threads": 1 if label == BLAS_1 else c.blas_threads(),
-               "steps": props.get("steps"), "width": s["width"], "height": s["height"],
-               "status": t.get("error", "ok"), "load_before": load_before,
-               "load_after": load_after, "reference": info["path"]}
-        if "error" not in t:
-            row.update(c.errors(t["image"], ref))
-            row.update({k: t[k] for k in ("time_s", "time_min_s", "time_max_s", "first_run_s",
-                                          "scattering_s", "scattering_net_s", "stages")})
-        rows.append(row)
+    for settings, reps, warm_up in groups:
+        integs = {label: c.build(kind, props) for label, (kind, props) in settings.items()}
+        timed = c.time_renders(scene, integs, repeats=reps, progress=progress,
+                               contexts={label: lambda: c.limit_blas_threads(1)
+                                         for label in settings},
+                               warm_up=warm_up)
+        for label, (kind, props) in settings.items():
+            t = timed[label]
+            row = {"scene": name, "setting": label, "integrator": kind, "params": props,
+                   "baseline": props.get("visibility"), "blas_threads": 1,
+                   "steps": props.get("steps"), "width": s["width"], "height": s["height"],
+                   "repeats": reps, "status": t.get("error", "ok"),
+                   "load_before": load_before, "reference": info["path"]}
+            if "error" not in t:
+                row.update(c.errors(t["image"], ref))
+                row.update({k: t[k] for k in ("time_s", "time_min_s", "time_max_s",
+                                              "first_run_s", "scattering_s",
+                                              "scattering_net_s", "stages")})
+            rows.append(row)
+    load_after = c.load_average()
+    for row in rows:
+        row["load_after"] = load_after
     add_paper_times(rows)
     return rows
 
@@ -130,7 +148,7 @@ def add_paper_times(rows: list[dict]) -> None:
                     if r["status"] == "ok" and "shadowmap" in r.get("stages", {}))
     build = builds[len(builds) // 2] if builds else math.nan
     for r in rows:
-        if r["status"] != "ok":
+        if r["status"] != "ok" or "paper_s" in r:
             continue
         if r["integrator"] == "raymarch":
             r["paper_s"] = r["scattering_net_s"]
@@ -170,27 +188,38 @@ def equal_error_time(curve: list[tuple[float, float]], target: float):
     return pts[-1][0], ">="
 
 
+#: ray-marching baselines: visibility -> what it is compared with
+BASELINES = {"shadowmap": "shadow map of the same resolution (the issue's comparison)",
+             "exact": "ray-traced visibility, as the traced tree's blockers"}
+
+
 def speedups(rows: list[dict]) -> list[dict]:
-    """One row per (scene, tree variant, convention): the tree's time and
-    relMSE, the interpolated raymarch time and steps, speedup and bound."""
+    """One row per (scene, tree variant, baseline, convention): the tree's
+    time and relMSE, the interpolated raymarch time and steps, speedup and
+    bound."""
     out = []
     for scene in dict.fromkeys(r["scene"] for r in rows):
         mine = [r for r in rows if r["scene"] == scene and r["status"] == "ok"]
-        marches = sorted((r for r in mine if r["integrator"] == "raymarch"),
-                         key=lambda r: r["steps"])
-        for tree in (r for r in mine if r["integrator"] == "epipolar_tree"):
-            for conv in CONVENTIONS:
-                key = time_key(conv)
-                curve = [(r[key], r["relmse_b1"]) for r in marches]
-                t_rm, bound = equal_error_time(curve, tree["relmse_b1"])
-                steps, _ = equal_error_time([(r["steps"], r["relmse_b1"]) for r in marches],
-                                            tree["relmse_b1"])
-                out.append({"scene": scene, "tree": tree["setting"], "convention": conv,
-                            "tree_relmse_b1": tree["relmse_b1"], "tree_flip_b1": tree["flip_b1"],
-                            "tree_time_s": tree[key], "raymarch_time_s": t_rm,
-                            "raymarch_steps_equal_error": steps, "bound": bound,
-                            "speedup": t_rm / tree[key] if tree[key] > 0 else math.nan,
-                            "target": TARGET.get(scene), "paper": PAPER_SPEEDUP.get(scene)})
+        for baseline in BASELINES:
+            marches = sorted((r for r in mine if r["integrator"] == "raymarch"
+                              and r["baseline"] == baseline), key=lambda r: r["steps"])
+            if not marches:
+                continue
+            for tree in (r for r in mine if r["integrator"] == "epipolar_tree"):
+                for conv in CONVENTIONS:
+                    key = time_key(conv)
+                    curve = [(r[key], r["relmse_b1"]) for r in marches]
+                    t_rm, bound = equal_error_time(curve, tree["relmse_b1"])
+                    steps, _ = equal_error_time([(r["steps"], r["relmse_b1"]) for r in marches],
+                                                tree["relmse_b1"])
+                    out.append({"scene": scene, "tree": tree["setting"], "baseline": baseline,
+                                "convention": conv, "tree_relmse_b1": tree["relmse_b1"],
+                                "tree_flip_b1": tree["flip_b1"], "tree_time_s": tree[key],
+                                "raymarch_time_s": t_rm, "raymarch_steps_equal_error": steps,
+                                "bound": bound,
+                                "speedup": t_rm / tree[key] if tree[key] > 0 else math.nan,
+                                "target": TARGET.get(scene) if baseline == "shadowmap" else None,
+                                "paper": PAPER_SPEEDUP.get(scene)})
     return out
 
 
@@ -204,13 +233,16 @@ def speedup_text(r: dict) -> str:
 
 
 def speedup_table(summary: list[dict]) -> str:
-    header = ["scene", "tree", "tree relMSE", "raymarch steps @ equal error",
-              "speedup paper", "speedup scattering", "speedup total", "target", "paper"]
+    header = ["scene", "tree", "baseline (raymarch visibility)", "tree relMSE",
+              "raymarch steps @ equal error", "speedup paper", "speedup scattering",
+              "speedup total", "target", "paper"]
     body = []
-    for (scene, tree) in dict.fromkeys((r["scene"], r["tree"]) for r in summary):
-        by = {r["convention"]: r for r in summary if r["scene"] == scene and r["tree"] == tree}
+    keys = dict.fromkeys((r["scene"], r["tree"], r["baseline"]) for r in summary)
+    for (scene, tree, baseline) in keys:
+        by = {r["convention"]: r for r in summary
+              if (r["scene"], r["tree"], r["baseline"]) == (scene, tree, baseline)}
         p = by["paper"]
-        body.append([scene, tree, c.fmt(p["tree_relmse_b1"]),
+        body.append([scene, tree, baseline, c.fmt(p["tree_relmse_b1"]),
                      ("" if p["bound"] == "=" else p["bound"] + " ")
                      + c.fmt(p["raymarch_steps_equal_error"], 4),
                      *(speedup_text(by[k]) for k in CONVENTIONS),
@@ -257,11 +289,13 @@ def plot(path, rows: list[dict]) -> None:
     fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.2 * nrows), squeeze=False)
     for ax, scene in zip(axes.flat, scenes):
         ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok"]
-        rm = sorted((r for r in ok if r["integrator"] == "raymarch"), key=lambda r: r["steps"])
-        ax.plot([r["paper_s"] for r in rm], [r["relmse_b1"] for r in rm], "o-", ms=3,
-                label="raymarch (march only)")
-        for r in rm:
-            ax.annotate(str(r["steps"]), (r["paper_s"], r["relmse_b1"]), fontsize=6)
+        for baseline, style in zip(BASELINES, ("o-", "o:")):
+            rm = sorted((r for r in ok if r["integrator"] == "raymarch"
+                         and r["baseline"] == baseline), key=lambda r: r["steps"])
+            ax.plot([r["paper_s"] for r in rm], [r["relmse_b1"] for r in rm], style, ms=3,
+                    label=f"raymarch {baseline} (march only)")
+            for r in rm:
+                ax.annotate(str(r["steps"]), (r["paper_s"], r["relmse_b1"]), fontsize=6)
         for r, m in zip((r for r in ok if r["integrator"] == "epipolar_tree"), "sDv^"):
             ax.plot([r["paper_s"]], [r["relmse_b1"]], m, label=r["setting"])
             ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")

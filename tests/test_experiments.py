@@ -114,7 +114,7 @@ def test_tree_speedup_quick(tmp_path, cache):
     check_outputs(tmp_path, ["runs.csv", "speedup.csv", "speedup.json", "table.md",
                              "speedup.png"])
     assert all(r["status"] == "ok" for r in rows)
-    assert len(summary) == 3 * len(tree_speedup.CONVENTIONS)
+    assert len(summary) == 3 * len(tree_speedup.BASELINES) * len(tree_speedup.CONVENTIONS)
     for s in summary:
         assert s["bound"] in ("=", ">=", "<=") and s["speedup"] > 0
     assert len(read_csv(tmp_path / "runs.csv")) == len(rows)
