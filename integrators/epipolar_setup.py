@@ -507,6 +507,16 @@ def trace_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, k: i
     return trace_sub_ray_blockers(params, queries, rays, k, seed, adaptive).angle
 
 
+def adaptive_sub_ray_gamma(rays: LightRays, k: int, seed: int = 0):
+    """(row, γ) of the sub-rays of ``trace_sub_ray_blockers(adaptive=True)``:
+    :func:`sub_ray_gamma`'s, but sub-ray 0 at the centre of the first
+    stratum, where the interval's boundary ray is traced."""
+    s, gamma = sub_ray_gamma(rays, k, seed)
+    _, g, m = rays.lanes(k)
+    first = rays.start(s) + (mi.Float(g) + 0.5 / k) * dr.gather(mi.Float, rays.delta_gamma, s)
+    return s, dr.select(m == 0, first, gamma)
+
+
 def trace_sub_ray_blockers(params, queries: EpipolarQueries, rays: LightRays, k: int = 1,
                            seed: int = 0, adaptive: bool = False) -> SubRayBlockers:
     """S = atan2(γ, u_b) of ``k`` sub-rays per light ray (:func:`trace_blocker_angles`).
@@ -517,7 +527,9 @@ def trace_sub_ray_blockers(params, queries: EpipolarQueries, rays: LightRays, k:
     intervals where the blockers vary smoothly (:func:`_smooth_intervals`)
     the sub-rays' u_b is interpolated linearly between the two boundaries
     (exact for planar blockers), elsewhere the k sub-rays are traced.  The
-    sub-rays sit at the same stratified jittered γ either way.  Away from
+    boundaries sit at the centres of the intervals' first strata and serve
+    as their sub-ray 0 (so a rough interval traces k − 1 more rays); the
+    other sub-rays are jittered in their strata as without ``adaptive``.  Away from
     edges this traces one ray per light ray instead of ``k``; a blocker
     thinner than a light-ray interval that crosses no boundary is missed
     (the sub-rays would have found it with probability < 1).  An
@@ -534,24 +546,30 @@ def trace_sub_ray_blockers(params, queries: EpipolarQueries, rays: LightRays, k:
     n = dr.width(rays.delta_gamma)
     j = dr.arange(mi.UInt32, n * nb)
     s_b = j // nb
-    gamma_b = rays.start(s_b) + mi.Float(j % nb) * dr.gather(mi.Float, rays.delta_gamma, s_b)
+    c0 = 0.5 / k          # the boundaries sit at the centres of the first strata
+    gamma_b = (rays.start(s_b)
+               + (mi.Float(j % nb) + c0) * dr.gather(mi.Float, rays.delta_gamma, s_b))
     hit, u_b = _blocker_depth(params, queries, s_b, gamma_b)
     dr.eval(hit, u_b)
     smooth, e = _smooth_intervals(queries, rays, s_b, gamma_b, hit, u_b)
     dr.eval(smooth, e)
-    # every sub-ray interpolated: u_b lerped at its place in its interval
-    owner = dr.arange(mi.UInt32, dr.width(s)) // k        # its interval (n·d lanes)
+    # every sub-ray interpolated: u_b lerped at its place between the
+    # boundaries; sub-ray 0 *is* its interval's boundary (f = 0, exact)
+    lane = dr.arange(mi.UInt32, dr.width(s))
+    owner, m = lane // k, lane % k                        # its interval (n·d lanes)
     g = owner % rays.d
     b = s * nb + g
     dg = dr.gather(mi.Float, rays.delta_gamma, s)
-    f = (gamma - rays.start(s)) / dg - mi.Float(g)
+    gamma = adaptive_sub_ray_gamma(rays, k, seed)[1]
+    f = dr.select(m == 0, 0.0, (gamma - rays.start(s)) / dg - mi.Float(g) - c0)
     u = dr.lerp(dr.gather(mi.Float, u_b, b), dr.gather(mi.Float, u_b, b + 1), f)
     out = dr.select(dr.gather(mi.Bool, hit, b), dr.atan2(gamma, u), math.pi)
     e0, e1 = dr.gather(mi.Int32, e, b), dr.gather(mi.Int32, e, b + 1)
     lo, hi = mi.UInt32(dr.minimum(e0, e1)), mi.UInt32(dr.maximum(e0, e1))
     dr.eval(out, lo, hi)
-    # ... and traced, with the whole row as index range, where not smooth
-    sel = dr.compress(~dr.gather(mi.Bool, smooth, owner))
+    # ... and traced (but sub-ray 0, traced already), with the whole row as
+    # index range, where not smooth
+    sel = dr.compress(~dr.gather(mi.Bool, smooth, owner) & (m != 0))
     if dr.width(sel):
         sub = _blocker_angle(params, queries, dr.gather(mi.UInt32, s, sel),
                              dr.gather(mi.Float, gamma, sel))
