@@ -41,19 +41,25 @@ class EpipolarIntegrator(EpiscatterIntegrator):
     def check_light(self, params) -> None:
         """Raise ValueError for lights the method does not support (hook)."""
 
-    def integrate_queries(self, params, cap, queries):
-        """L_scat of every (non-ring) query (hook)."""
+    def integrate_queries(self, params, cap, queries, plan=None):
+        """L_scat of every (non-ring) query (hook); ``plan``: what
+        :meth:`choose_rows` returned with the rows."""
         raise NotImplementedError
+
+    def choose_rows(self, params, cap):
+        """(frame, slices, plan): the rows the camera samples are sorted into
+        (hook): Baran's epipolar slices (§3, §8), no plan."""
+        frame = epipolar_frame_of(params)
+        return frame, choose_slices(frame, self.slices), None
 
     def scattering(self, params, cap):
         self.check_light(params)
         with self.stage("rectify"):
-            frame = epipolar_frame_of(params)
-            slices = choose_slices(frame, self.slices)
+            frame, slices, plan = self.choose_rows(params, cap)
             queries = assign_queries(params, frame, slices, cap, self.ring_degrees)
         parts = []
         if queries.n:
-            parts.append((queries.sample, self.integrate_queries(params, cap, queries)))
+            parts.append((queries.sample, self.integrate_queries(params, cap, queries, plan)))
         with self.stage("ring") as keep:
             if dr.width(queries.ring_sample):
                 parts.append((queries.ring_sample,

@@ -142,7 +142,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         self.adaptive_prefilter = read_bool(props, "adaptive_prefilter", True)
 
     # -- the method ---------------------------------------------------------------
-    def integrate_queries(self, params, cap, queries):
+    def integrate_queries(self, params, cap, queries, plan=None):
         return self.sweep_queries(params, cap, queries)
 
     def sweep_queries(self, params, cap, queries):

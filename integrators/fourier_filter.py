@@ -2,11 +2,16 @@
 Scattering using Rectified Shadow Maps" (JCGT 3(3)).
 
 The rectified shadow map is built on the epipolar rectification shared with
-``epipolar_tree`` (:mod:`integrators.epipolar_setup`, directional light) by
+``epipolar_tree`` (:mod:`integrators.epipolar_setup`: directional light;
+:mod:`integrators.epipolar_local_light`: point and spot lights, Baran §9) by
 :mod:`integrators.fourier_setup`; the Fourier-basis prefilter and the
 per-pixel evaluation are :mod:`integrators.fourier_basis`; the separated
-kernel of ``weights="exact"`` is ``epipolar_tree``'s
-(:func:`integrators.epipolar_tree.separated_kernel`).
+kernels of ``weights="exact"`` are ``epipolar_tree``'s
+(:func:`integrators.epipolar_tree.separated_kernel`,
+:func:`integrators.epipolar_local_light.local_separated_kernel`).  Klehm's
+projective rectification (§4.2, ``rectification="projective"``) takes its
+rows and texels from :mod:`rectify.projective` and its unequal texels'
+integrals (Eq. 12) from :mod:`integrators.fourier_setup`.
 """
 from __future__ import annotations
 
@@ -16,41 +21,70 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from rectify.epipole import EpipolarFrame
+from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, ProjectiveRows,
+                                auto_splits, frustum_axis_angle, projective_columns,
+                                projective_rectification, projective_rows)
+
 from .capture import capture_shadow_map
+from .epipolar_local_light import (light_ray_factor, local_kernel, local_light_ray_grid,
+                                   local_query_terms, local_separated_kernel, query_x_max,
+                                   shadow_map_local_blocker_angles, trace_local_blocker_angles)
 from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
-                             directional_query_terms, gray, light_ray_grid, light_side_factor,
-                             require_directional, shadow_map_blocker_angles,
+                             directional_query_terms, epipolar_frame_of, light_ray_grid,
+                             light_side_factor, shadow_map_blocker_angles,
                              trace_blocker_angles)
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
-                            prefilter_rows, query_beta_range, rectified_shadow_map,
-                            reference_angle, series_sum, series_visibility,
-                            shadowed_sum)
+                            ProjectiveLightRays, prefilter_rows, projective_light_rays,
+                            projective_query_terms, projective_x_range, query_beta_range,
+                            rectified_shadow_map, reference_angle, series_sum,
+                            series_visibility, shadowed_sum, texel_blocker_angles,
+                            texel_integral, texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
 RECTIFICATIONS = ("auto", "epipolar", "projective")
 BLOCKERS = ("traced", "resampled")
+#: default ``projective_min_angle`` [deg]: ``auto`` takes the projective map
+#: when every view ray of the image is at least this far from the light
+#: direction (Klehm §4.2: "distance of the epipole to screen border").
+#: Measured at 320×240 and 640×480 (the README): the error equals the
+#: epipolar slices' at every angle (0.95-1.2×) but the time is 1.1-1.4× the
+#: epipolar path's even at 41-49° (the rows needed for the half-pixel bound
+#: are 1.03× Baran's sinh slices at 49°, 1.2× at 30°, 7× at 2.4°, and the
+#: unequal texels cost a larger kernel stage); on ``beam``, whose shaft
+#: edges run along the rows, its default rows gave a far larger error.  On
+#: this CPU it never pays, so ``auto`` keeps the epipolar slices unless the
+#: threshold is lowered (90°: at most one view direction qualifies).
+PROJECTIVE_MIN_ANGLE = 90.0
+#: ``rectification="projective"`` is refused closer than this [deg]
+#: (rectify.projective's default: the map degenerates, Klehm's fallback)
+PROJECTIVE_FLOOR = DEFAULT_MIN_ANGLE_DEG
 
 
 class FourierFilterIntegrator(EpipolarIntegrator):
     r"""Filter-based single scattering (``fourier_filter``).
 
-    Single scattering with volumetric shadows of a directional light in the
-    homogeneous medium around the camera, after Klehm et al. 2014:
+    Single scattering with volumetric shadows of a directional, point or
+    spot light (with or without a projected texture) in the homogeneous
+    medium around the camera, after Klehm et al. 2014:
 
     1. *Rectified shadow map* (§2.2, §4.1): epipolar slices = rows, ``d``
        light rays per slice = texels, each traced with Mitsuba from the
-       light (``blockers="traced"``) or read from a classic orthographic
-       shadow map (``"resampled"``).  The depth constant along a view ray is
+       light (``blockers="traced"``) or read from a classic shadow map
+       (``"resampled"``: orthographic, perspective for a spot light of
+       cutoff ≤ 60°, else a cube).  The depth constant along a view ray is
        its angle β to the light; a texel holds its blocker's angle β_b
        (view ray β is shadowed there iff β > β_b: Eq. 5's step).  Every
        camera sample is evaluated at its **own** β and depth (it is a query
        of its nearest slice; nothing is interpolated back to pixels).
        See :mod:`integrators.fourier_setup` for the depth mapping
-       (``depth_range``).
+       (``depth_range``).  The rows and texels are either the epipolar
+       ones (Baran's sinh slices, ``d`` equal light rays per slice) or
+       Klehm's projective map (§4.2, below).
     2. *Basis and prefilter* (§3.1 Eqs. 6-10, §3.3 Listings 1-3): the shadow
        test is expanded in ``M`` Fourier coefficients; weighted running
        prefix sums of the basis along every row (normalised, Appendix A).
@@ -58,19 +92,38 @@ class FourierFilterIntegrator(EpipolarIntegrator):
        dot product per lookup, times the weight sum of the texels in front
        of its end point: L_scat = σs f_p E · Δγ/sin β · Σ_γ L(γ) K(γ, β) V.
 
-    With L(γ) = e^{-σt h(α,γ)} the light-side transmittance per light ray and
-    K(γ, β) = e^{-σt γ tan(β/2)} the camera and light transmittance kernel
-    (DESIGN §1, :mod:`integrators.epipolar_setup`), ``weights`` chooses how
-    the weighted sum Σ L K V is obtained:
+    Directional light: L(γ) = e^{-σt h(α,γ)} the light-side transmittance
+    per light ray and K(γ, β) = e^{-σt γ tan(β/2)} the camera and light
+    transmittance kernel (DESIGN §1, :mod:`integrators.epipolar_setup`).
+
+    Point and spot lights (Baran §9, :mod:`integrators.epipolar_local_light`):
+    rows are the same slices, texels are light rays at angles γ *at the
+    light* on one lattice (a spot light's rows start at its cone; narrower
+    rows use fewer texels of a row of ``d``), and the blocker angle keeps
+    its meaning (view ray β is shadowed on light ray γ iff β > β_b).  The
+    per-view-ray factor is σs·Δγ/(L sin β), L = |p_l − o| the light's
+    distance from the eye (dt/r² = dγ/(L sin β): the 1/r² fall-off costs
+    nothing); per light ray L(α, γ) = Mitsuba's intensity
+    (spot fall-off, projected texture: coloured) times e^{-σt (L − r_in)};
+    the kernel K(γ, β) = e^{-σt (t + r − L)} f_p(β + γ) holds both
+    transmittances and the phase function, which depends on β + γ.
+
+    ``weights`` chooses how the weighted sum Σ L K V is obtained:
 
     ``average`` (§3.1)
         filter weights L(γ): the average visibility V̄ of Eq. 4/Listing 4
-        times the query's own unshadowed sum U(β) = Σ L K(γ, β).
+        times the query's own unshadowed sum U(β) = Σ L K(γ, β).  For a
+        local light L carries the light's angular contribution (fall-off,
+        texture): §3.2's "angular dependency" weights.
     ``reference_ray`` (§3.2, Eq. 11, Listing 2; default)
         filter weights L(γ) K(γ, β_ref) of one reference ray per slice:
         the bisectrix of the slice's (smallest, largest) transmittance
         decay, or the min-max optimum (``reference``, see
         :func:`~integrators.fourier_setup.reference_angle`); V̄ · U(β).
+        For a local light K(γ, β_ref) is the kernel's mean over each
+        texel's interval, the reference ray's phase function f_p(β_ref + γ)
+        included: the angular dependency of §3.2 of both the light and the
+        scattering angle.
     ``exact`` (beyond the paper)
         K = Σ_n A_n(γ) B_n(β) separated as in ``epipolar_tree`` (SVD,
         ``svd_rank``/``svd_tolerance``); one filter per component with the
@@ -81,6 +134,33 @@ class FourierFilterIntegrator(EpipolarIntegrator):
 
     U(β) uses the same separated kernel (prefix sums of L A_n, no filter).
     Rows with no blocker in view take U directly (closed form, no filter).
+
+    ``rectification="projective"`` (Klehm §4.2, directional light):
+    the matrix of :func:`~rectify.projective.projective_rectification`
+    maps every slice to a row and every light ray to a texel.  Rows are
+    equally spaced in its NDC row, i.e. in tan(α − α_mid) (nearly equally
+    spaced on screen when the epipole is far off it), as many as keep
+    every pixel centre within half a pixel of a row
+    (:func:`~rectify.projective.projective_rows`); the camera samples are
+    queries of their nearest row, each at its own β and depth as above.
+    Texels are equally spaced in the matrix's column, i.e. in 1/x (x the
+    distance along the frustum's bisectrix; γ = x/cos φ on a row): the
+    depth-buffer non-linearity of §4.2, tamed by Klehm's splits (geometric
+    in x, each its own projective map, ``projective_splits``; texels per
+    split ∝ √length, :func:`~rectify.projective.projective_columns`),
+    fitted to the x range of the camera rays.  Texels are therefore
+    unequally wide: every weight holds the exact integral over its texel
+    (Eq. 12 with the map's own texel edges: ``reference_ray``
+    T(start)(1 − T(across)) along the reference ray, ``average`` the
+    texel width, ``exact`` the Gauss–Legendre integral of the separated
+    kernel), and the segment between the map's first edge and the camera
+    ray's origin is taken in closed form with the first texel's
+    visibility.  Accuracy equals the epipolar slices' (measured relMSE
+    0.95-1.2× theirs at equal settings at 320×240, 0.5-1.6× at 32×24,
+    1.03× on the nave at 640×480); it costs more rows as the epipole nears
+    the screen and ~1.2× the time when far off it (no rasterisation to
+    gain in a ray tracer), hence ``auto`` (below).  Blockers are traced (or read
+    from the shadow map) along the light ray through each texel centre.
 
     =========================  =============================================
     ``coefficients``           M, Fourier coefficients, sines and cosines
@@ -99,38 +179,82 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     ``depth_range``            ``slice`` (default): each slice's β range,
                                texels outside it summed exactly; ``full``:
                                z = β/π (:mod:`integrators.fourier_setup`)
-    ``slices``                 epipolar slices; 0 (default): automatic
-                               (sinh distribution, every pixel within half
-                               a pixel of a slice)
+    ``slices``                 epipolar slices (projective: rows); 0
+                               (default): automatic (sinh distribution;
+                               projective: equal steps), every pixel
+                               within half a pixel of a slice (row)
     ``light_rays``             texels (light rays) per row; 0 (default):
                                4× ``epipolar_tree``'s automatic count, at
-                               most 1024 (:func:`auto_texels`)
+                               most 1024 (:func:`auto_texels`); point/spot:
+                               the widest row's, narrower rows get fewer
+                               at the same angular spacing
     ``ring_degrees``           ray-marched ring around the (anti-)epipole
                                (default 2)
     ``ring_steps``             ray-marching segments in the ring (256)
     ``svd_rank``,              separated kernel: rank (0: automatic) and
     ``svd_tolerance``          relative L2 tolerance (1e-3)
-    ``rectification``          ``auto`` = ``epipolar`` (default);
-                               ``projective`` (§4.2) is not implemented
+    ``rectification``          ``auto`` (default): ``projective`` for a
+                               directional light whose (anti-)epipole is
+                               far off screen (every view ray at least
+                               ``projective_min_angle`` from the light
+                               direction), else ``epipolar``;
+                               ``epipolar``: Baran's slices; ``projective``:
+                               Klehm §4.2 (above; refused with a
+                               ValueError for point/spot lights, an
+                               on-screen (anti-)epipole or view rays
+                               within 5° of the light direction)
+    ``projective_min_angle``   ``auto``'s threshold in degrees (default
+                               90: never -- the projective path measured
+                               1.1-1.4× slower than the epipolar one at
+                               equal error at every angle on this CPU;
+                               ``PROJECTIVE_MIN_ANGLE``); 40 takes it where
+                               its rows are within 8 % of the sinh slices'
+    ``projective_splits``      Klehm's splits of the projective columns;
+                               0 (default): automatic, each spans ≤ 2× in x
+                               (:func:`~rectify.projective.auto_splits`)
     ``blockers``               ``traced`` (default) | ``resampled``
-    ``shadowmap_resolution``   texels per side for ``resampled`` (2048)
+    ``shadowmap_resolution``   texels per side (per cube face) for
+                               ``resampled`` (2048)
     =========================  =============================================
 
     Plus the template's ``output``, ``samples_per_pixel``, ``jitter_pixels``.
     ``self.timings`` splits the scattering stage into ``rectify``,
     ``blockers``, ``svd``, ``prefilter``, ``evaluate``, ``unrectify`` and
-    ``ring``.
+    ``ring``; ``self.rectification_used`` says which rectification the last
+    render took (``epipolar`` or ``projective``).
 
-    Does not: point and spot lights (raises ``ValueError``), textured
-    lights, the projective rectification of §4.2 (raises ``ValueError``),
-    depth-mode prefiltering of sub-texel blockers, translucent blockers,
-    heterogeneous media.  Approximations, all vanishing as ``coefficients``,
-    ``slices`` and ``light_rays`` grow (``weights="exact"``; the other two
-    keep their weighting error): the truncated Fourier series blurs each
-    shadow step over ~1/M of the slice's depth range and rings (Gibbs) next
-    to it; a sample uses the blockers and the light-side factor of its
-    nearest slice; visibility is resolved to a light-ray interval.  Coloured
-    σt runs every filter once per channel.
+    =====================  ==================================================
+    light                  supported
+    =====================  ==================================================
+    directional            yes (L: light-side transmittance); epipolar or
+                           projective rectification
+    point                  yes (§9 light rays; cube map for ``resampled``);
+                           epipolar rectification only
+    spot                   yes (rows start at the cone; perspective map for
+                           ``resampled`` up to 60° cutoff, else cube);
+                           epipolar rectification only
+    spot, ``texture``      yes (coloured L: three filter sets even in a
+                           grey medium, Klehm §3.2's "triples storage")
+    area, environment,     no: ``ValueError`` from the scene check naming
+    several emitters       the emitter and the fix
+    =====================  ==================================================
+
+    Does not: the projective rectification of point and spot lights
+    (``ValueError``: use ``epipolar``/``auto``), rasterising the projective
+    map (its texels are traced or read from the shadow map like the
+    epipolar ones), depth-mode prefiltering of sub-texel blockers (one ray
+    per texel, also for the projected texture and the cone's edge),
+    translucent blockers, heterogeneous media.  Approximations, all
+    vanishing as ``coefficients``, ``slices`` and ``light_rays`` grow
+    (``weights="exact"``; the other two keep their weighting error): the
+    truncated Fourier series blurs each shadow step over ~1/M of the slice's
+    depth range and rings (Gibbs) next to it; a sample uses the blockers and
+    the light-side factor (point/spot: intensity, fall-off, texture) of its
+    nearest slice (row); visibility is resolved to a light-ray interval
+    (texel); point/spot: the short segment between pinhole and near plane
+    is one midpoint sample; projective: the segment in front of the map's
+    first edge takes the first texel's visibility.  Coloured σt or a
+    textured light runs every filter once per channel.
 
     Klehm, Seidel, Eisemann: Filter-Based Real-Time Single Scattering using
     Rectified Shadow Maps, JCGT 3(3), 2014.
@@ -153,63 +277,148 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         self.exact_bounds = read_bool(props, "exact_bounds", True)
         self.depth_range = read_choice(props, "depth_range", "slice", DEPTH_RANGES)
         self.rectification = read_choice(props, "rectification", "auto", RECTIFICATIONS)
-        if self.rectification == "projective":
-            raise ValueError("Property 'rectification' = 'projective': Klehm's projective "
-                             "rectification (§4.2) is not implemented yet in fourier_filter; "
-                             "use 'epipolar' or 'auto'.")
+        self.projective_min_angle = read_number(props, "projective_min_angle",
+                                                PROJECTIVE_MIN_ANGLE, minimum=0.5,
+                                                maximum=90.0)
+        self.projective_splits = read_number(props, "projective_splits", 0, minimum=0,
+                                             maximum=4096, integer=True)
+        self.rectification_used = None
         self.blockers = read_choice(props, "blockers", "traced", BLOCKERS)
 
     @property
     def filter_settings(self) -> FilterSettings:
         return FilterSettings(self.M, self.regions, self.fit_depth, self.exact_bounds)
 
-    # -- the method ---------------------------------------------------------------
-    def check_light(self, params):
-        require_directional(params, "fourier_filter", "Klehm 2014 §3.2 local lights")
+    # -- rectification: epipolar (template) or projective (§4.2) -------------------
+    def choose_rows(self, params, cap):
+        """The template's epipolar slices, or the projective map's rows when
+        :meth:`projective_plan` returns one (then also the plan);
+        ``self.rectification_used`` says which the last render took."""
+        plan = self.projective_plan(params, cap)
+        self.rectification_used = "epipolar" if plan is None else "projective"
+        if plan is None:
+            return super().choose_rows(params, cap)
+        return plan.frame, plan.rows.slices, plan
 
-    def integrate_queries(self, params, cap, queries):
-        """L_scat of every query (§3, Listing 4)."""
-        rect = self.rectified_sums(params, cap, queries)
+    def projective_plan(self, params, cap) -> "ProjectivePlan | None":
+        """The projective map's frame, matrix and rows, or None for the
+        epipolar rectification: ``epipolar``; ``auto`` with a point/spot
+        light or a view ray closer than ``projective_min_angle`` to the light
+        direction (:func:`~rectify.projective.frustum_axis_angle`).
+        ``projective`` refuses (ValueError naming the problem and the fix)
+        a point/spot light, an on-screen (anti-)epipole and view rays closer
+        than ``PROJECTIVE_FLOOR`` to the light direction."""
+        if self.rectification == "epipolar":
+            return None
+        explicit = self.rectification == "projective"
+        if is_local(params):
+            if explicit:
+                raise ValueError(
+                    f"fourier_filter: rectification='projective' supports directional "
+                    f"lights only, the scene's light is a {params.light.kind} light; use "
+                    "rectification='epipolar' or 'auto' (which takes the epipolar "
+                    "rectification for point and spot lights).")
+            return None
+        frame = epipolar_frame_of(params)
+        if not explicit and frustum_axis_angle(frame) < self.projective_min_angle:
+            return None
+        rect, reason = projective_rectification(frame, far_depth(params, cap),
+                                                min_angle_deg=PROJECTIVE_FLOOR)
+        if rect is None:
+            if explicit:
+                raise ValueError(
+                    f"fourier_filter: rectification='projective' is impossible here: "
+                    f"{reason}; use rectification='epipolar' or 'auto' (which takes the "
+                    "epipolar slices in this view).")
+            return None
+        return ProjectivePlan(frame, rect, projective_rows(frame, rect, self.slices))
+
+    def projective_rays(self, params, queries, plan: "ProjectivePlan",
+                        d: int) -> ProjectiveLightRays:
+        """``d`` texels per row over the x range of the queries, in
+        ``projective_splits`` splits (0: :func:`~rectify.projective.auto_splits`)."""
+        x_lo, x_hi = projective_x_range(queries, plan.rows)
+        splits = self.projective_splits or auto_splits(x_lo, x_hi)
+        columns = projective_columns(x_lo, x_hi, d, splits)
+        return projective_light_rays(params, queries, plan.rows, columns)
+
+    # -- the method ---------------------------------------------------------------
+    def integrate_queries(self, params, cap, queries, plan=None):
+        """L_scat of every query (§3, Listing 4); ``plan``: the projective
+        map's rows (:meth:`projective_plan`), None: epipolar slices."""
+        rect = self.rectified_sums(params, cap, queries, plan)
         with self.stage("unrectify") as keep:
             V_near = near_visibility(queries, rect.rays, rect.beta_b)
-            terms = directional_query_terms(params, cap, queries, rect.rays, V_near)
+            if plan is not None:
+                terms = projective_query_terms(params, cap, queries, rect.rays, V_near)
+            elif is_local(params):
+                terms = local_query_terms(params, cap, queries, rect.rays, rect.colour, V_near)
+            else:
+                terms = directional_query_terms(params, cap, queries, rect.rays, V_near)
             value = assemble_queries(terms, rect.integral())
             keep.append(value)
         return value
 
-    def rectified_sums(self, params, cap, queries) -> "RectifiedSums":
+    def rectified_sums(self, params, cap, queries, plan=None) -> "RectifiedSums":
         """Σ_γ L K V cover per query and colour channel, as the unshadowed
         sum U times the effective visibility V̄ (class doc)."""
+        local = is_local(params)
         with self.stage("rectify"):
-            d = self.light_rays or auto_texels(params, queries)
-            rays = light_ray_grid(params, queries, d)
+            d = self.light_rays or auto_texels(params, queries, cap)
+            if plan is not None:    # Klehm §4.2: texels of equal steps in 1/x
+                rays = self.projective_rays(params, queries, plan, d)
+                L, colour, lit = light_side_factor(params, queries, rays), None, None
+            elif local:   # Baran §9: γ = angle at the light, Klehm §3.2 angular weights
+                rays = local_light_ray_grid(params, queries, d)
+                L, colour, lit = light_ray_factor(params, queries, rays)
+            else:
+                rays = light_ray_grid(params, queries, d)
+                L, colour, lit = light_side_factor(params, queries, rays), None, None
             cover = Coverage.of(queries, rays)
-            L = light_side_factor(params, queries, rays)
         with self.stage("blockers"):
-            beta_b = self.blocker_angles(params, cap, queries, rays)
+            beta_b = self.blocker_angles(params, cap, queries, rays, lit)
             smap = rectified_shadow_map(queries, rays, beta_b, self.depth_range)
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
         with self.stage("svd") as keep:
-            A, B = separated_kernel(params, queries, rays, self.svd_rank, self.svd_tolerance)
+            if plan is not None:
+                A, B = texel_separated_kernel(separated_kernel, params, queries, rays,
+                                              self.svd_rank, self.svd_tolerance)
+            else:
+                separate = local_separated_kernel if local else separated_kernel
+                A, B = separate(params, queries, rays, self.svd_rank, self.svd_tolerance)
             keep.extend([A, B])
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-        C = 1 if gray(sigma_t) else 3
         U, V = [], []
-        for c in range(C):
-            parts = KernelParts.of(queries, rays, L, A, B, c, C)
-            U_c, V_c = self.channel_sums(queries, rays, smap, cover, parts, float(sigma_t[c]))
+        for c in range(channels(L, A)):
+            parts = KernelParts.of(queries, rays, L, A, B, c)
+            U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
+                                         float(sigma_t[c]))
             U.append(U_c)
             V.append(V_c)
-        return RectifiedSums(rays, beta_b, U, V)
+        return RectifiedSums(rays, beta_b, U, V, colour)
 
-    def blocker_angles(self, params, cap, queries, rays):
+    def blocker_angles(self, params, cap, queries, rays, lit=None):
+        """β_b per light ray (one ray through each texel's centre): traced
+        from the light, or read from a classic shadow map (orthographic,
+        perspective or cube by light kind); ``lit``: the local light's
+        texels that carry light (the others are not traced)."""
+        local = is_local(params)
+        if isinstance(rays, ProjectiveLightRays):      # one light ray per texel centre
+            if self.blockers == "traced":
+                return texel_blocker_angles(trace_blocker_angles, params, queries, rays, 1)
+            shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
+            return texel_blocker_angles(shadow_map_blocker_angles, params, queries, rays,
+                                        shadow_map, 1)
         if self.blockers == "traced":
+            if local:
+                return trace_local_blocker_angles(params, queries, rays, 1, lit=lit)
             return trace_blocker_angles(params, queries, rays, 1)
         shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        return shadow_map_blocker_angles(params, queries, rays, shadow_map, 1)
+        read = shadow_map_local_blocker_angles if local else shadow_map_blocker_angles
+        return read(params, queries, rays, shadow_map, 1)
 
-    def channel_sums(self, queries, rays, smap, cover, parts, sigma_t: float):
+    def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
         with ``clamp``, Appendix A)."""
@@ -220,8 +429,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             S = self.exact_sum(queries, smap, cover, parts)
             V = dr.select(U > 0.0, S / U, 1.0)
         else:
-            w = parts.L if self.weights == "average" else \
-                parts.L * reference_kernel(queries, rays, sigma_t, self.reference)
+            w = parts.L * (texel_size(rays) if self.weights == "average" else
+                           reference_kernel(params, queries, rays, sigma_t, self.reference))
             V = self.filtered_average(queries, smap, cover, w, self.clamp)
         with self.stage("evaluate") as keep:
             if self.clamp:
@@ -268,8 +477,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     def to_string(self):
         return (f"FourierFilterIntegrator[coefficients={self.M}, weights={self.weights}, "
                 f"regions={self.regions}, clamp={self.clamp}, fit_depth={self.fit_depth}, "
-                f"depth_range={self.depth_range}, slices={self.slices}, "
-                f"light_rays={self.light_rays}, output={self.output}]")
+                f"depth_range={self.depth_range}, rectification={self.rectification}, "
+                f"slices={self.slices}, light_rays={self.light_rays}, output={self.output}]")
 
 
 # --------------------------------------------------------------------------
@@ -282,26 +491,67 @@ TEXEL_FACTOR = 4
 MAX_AUTO_TEXELS = 1024
 
 
-def auto_texels(params, queries) -> int:
+def is_local(params) -> bool:
+    """A point or spot light (Baran §9 light rays), not a directional one."""
+    return params.light.kind != "directional"
+
+
+@dataclass(eq=False)
+class ProjectivePlan:
+    """The projective rectification of one render (Klehm §4.2): the frame,
+    the matrix and the rows (:func:`~rectify.projective.projective_rows`)."""
+    frame: EpipolarFrame
+    rect: ProjectiveRectification
+    rows: ProjectiveRows
+
+
+def far_depth(params, cap) -> float:
+    """Largest depth along the optical axis of a camera ray's end point
+    (the frustum's far plane for the projective matrix)."""
+    cam = params.camera
+    o = mi.Vector3f(*map(float, cam.origin))
+    f = mi.Vector3f(*map(float, cam.forward / np.linalg.norm(cam.forward)))
+    end = mi.Vector3f(cap.o) + cap.omega * cap.d - o
+    far = float(dr.max(dr.dot(end, f))[0]) if dr.width(cap.d) else 0.0
+    near = cam.near_clip if cam.near_clip > 0 else 1e-4 * params.scene_extent
+    return max(far, 10.0 * near)
+
+
+def texel_size(rays):
+    """Width of every texel (projective map), or 1 (equal widths per row,
+    which cancel in a weighted average)."""
+    return rays.widths() if isinstance(rays, ProjectiveLightRays) else 1.0
+
+
+def auto_texels(params, queries, cap) -> int:
     """Default texels (light rays) per row.  ``epipolar_tree`` resolves each
     light ray into ``prefilter`` = 4 sub-rays (Baran §7); a rectified shadow
     map has one depth per texel, so it takes ``TEXEL_FACTOR`` times its
     light rays (:func:`~integrators.epipolar_setup.auto_light_rays`), up to
-    ``MAX_AUTO_TEXELS`` (Klehm §5 uses 1024 for 1920×1080)."""
+    ``MAX_AUTO_TEXELS`` (Klehm §5 uses 1024 for 1920×1080).  The length
+    over which the medium's mean free paths are counted: the widest row's
+    γ_max (directional), the longest camera path (point/spot, as
+    ``epipolar_tree``)."""
     cam = params.camera
-    d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)),
-                        float(dr.max(queries.gamma_end)[0]))
+    if is_local(params):
+        length = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
+    else:
+        length = float(dr.max(queries.gamma_end)[0])
+    d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)), length)
     return max(d, min(TEXEL_FACTOR * d, MAX_AUTO_TEXELS))
 
 
 @dataclass(eq=False)
 class RectifiedSums:
     """Per query and colour channel (1 or 3): U = Σ_γ L K cover (no
-    blockers) and the effective average visibility V̄ of the blockers."""
+    blockers) and the effective average visibility V̄ of the blockers;
+    ``colour``: a point/spot light's colour when L is grey
+    (:func:`~integrators.epipolar_local_light.light_ray_factor`), else None."""
     rays: LightRays
     beta_b: mi.Float      # (n·d) blocker angle per light ray
     U: list
     V: list
+    colour: mi.Color3f | None = None
 
     def integral(self) -> mi.Color3f:
         """Σ_γ L K V cover = U · V̄ as a Color3f."""
@@ -309,19 +559,33 @@ class RectifiedSums:
         return mi.Color3f(*(values * 3 if len(values) == 1 else values))
 
 
+def _channel_count(t: mi.TensorXf, axis: int) -> int:
+    return t.shape[axis] if len(t.shape) > axis else 1
+
+
+def channels(L: mi.TensorXf, A: mi.TensorXf) -> int:
+    """Colour channels the filters run for: 3 if the per-light-ray factor
+    L (n, d[, 3]) or the kernel A (n, d, C, N) is coloured (coloured σt, or
+    a textured spot light's colour per light ray), else 1."""
+    return max(_channel_count(L, 2), A.shape[2])
+
+
 class KernelParts:
     """One colour channel of the separated integrand: L (n·d) per light ray,
-    A_n (n·d) at every light ray's start, B_n (Q) at every query's β."""
+    A_n (n·d) per light ray (directional: at its start; point/spot: its
+    interval's mean), B_n (Q) at every query's β."""
 
     def __init__(self, L, A, B):
         self.L, self.A, self.B = L, A, B
 
     @staticmethod
-    def of(queries, rays, L, A, B, c: int, C: int) -> "KernelParts":
+    def of(queries, rays, L, A, B, c: int) -> "KernelParts":
+        """Channel ``c`` of L and of A, B (a grey one serves every channel)."""
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
-        CL = L.shape[2] if len(L.shape) == 3 else 1
+        CL = _channel_count(L, 2)
         L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
-        N = A.shape[3]
+        C, N = A.shape[2], A.shape[3]
+        c = min(c, C - 1)
         A_c, B_c = [], []
         for i in range(N):
             b = dr.gather(mi.Float, B.array, queries.slot * (C * N) + c * N + i)
@@ -346,19 +610,37 @@ def row_shift(a, smap) -> mi.Float:
     return dr.select(dr.isfinite(lo), dr.maximum(-lo, 0.0), 0.0)
 
 
-def reference_kernel(queries, rays, sigma_t: float, how: str) -> mi.Float:
-    """K(γ_g, β_ref) per light ray (n·d): the transmittance weights of the
-    slice's reference ray (§3.2, Eq. 11; the light side included)."""
+def reference_kernel(params, queries, rays, sigma_t: float, how: str) -> mi.Float:
+    """K(γ, β_ref) per light ray (n·d): the weights of the slice's reference
+    ray (§3.2, Eq. 11; the light side included).  Directional:
+    e^{-σt γ_g tan(β_ref/2)} at the light ray's start γ_g (equal light rays:
+    the factor of the interval's mean is common to the row).  Projective
+    texels: the integral of that kernel over the texel, Eq. 12
+    (:func:`~integrators.fourier_setup.texel_integral`).  Point/spot:
+    the mean over the light ray's interval of e^{-σt (t + r − L)} f_p(β_ref + γ)
+    (:func:`~integrators.epipolar_local_light.local_kernel`): the phase
+    function of the reference ray at each light ray is the "angular
+    dependency" of §3.2, next to the light's own (intensity, fall-off,
+    texture) in L."""
     lo, hi = query_beta_range(queries)
     tan_ref = dr.tan(0.5 * reference_angle(lo, hi, how))
     s, gamma = rays.positions(0.0)
-    return dr.exp(-sigma_t * gamma * dr.gather(mi.Float, tan_ref, s))
+    tan_ref = dr.gather(mi.Float, tan_ref, s)
+    if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
+        return texel_integral(gamma, rays.widths(), sigma_t * tan_ref)
+    if not is_local(params):
+        return dr.exp(-sigma_t * gamma * tan_ref)
+    return local_kernel(params, sigma_t, float(queries.frame.light_distance),
+                        query_x_max(queries), tan_ref, gamma,
+                        dr.gather(mi.Float, rays.delta_gamma, s))
 
 
 def near_visibility(queries, rays, beta_b) -> mi.Float:
     """V of the first light ray at each query's β: the visibility the
     rectified sum gives the view ray in front of the near plane
-    (:func:`~integrators.epipolar_setup.directional_query_terms`)."""
+    (:func:`~integrators.epipolar_setup.directional_query_terms`,
+    :func:`~integrators.epipolar_local_light.local_query_terms`; a spot
+    light's first light ray is the first in its cone, as in epipolar_tree)."""
     first = dr.gather(mi.Float, beta_b, queries.row * rays.d)
     return dr.select(queries.beta <= first, 1.0, 0.0)
 

@@ -8,7 +8,10 @@ slice, blocker angles β_b per light ray) and feeds the Fourier prefilter of
 Rows, texels and depths
 -----------------------
 Row = epipolar slice α (one row per slice with queries); texel ``g`` = light
-ray ``g`` of the row, covering ``γ ∈ [g, g+1)·Δγ``.  The depth that is
+ray ``g`` of the row, covering ``γ ∈ γ_lo + [g, g+1)·Δγ`` (γ: the distance
+from the camera-light axis for a directional light, ``γ_lo = 0``; the angle
+at the light for a point or spot light, Baran §9, ``γ_lo`` the start of a
+spot light's cone in the slice).  The depth that is
 constant along a view ray is its angle β to the light (Baran's rectification,
 Klehm §2.2 "z denotes the angle spanned by the view-ray direction and the
 light direction"): view ray β is shadowed on light ray γ iff ``β > β_b(γ)``,
@@ -49,18 +52,38 @@ fraction of the next texel (:class:`Coverage`).  In
 the same coverage is ``j = D − 1`` (texel-centre convention; ``D < 1``
 clamps to texel 0, which changes the weight sum, not the average).
 
+Projective rectification (Klehm §4.2)
+-------------------------------------
+:class:`ProjectiveLightRays`: the rows of
+:func:`~rectify.projective.projective_rows` with texels equally spaced in
+1/x (:func:`~rectify.projective.projective_columns`), so texels are
+unequally wide.  Coverage uses the fractional texel index of
+:meth:`ProjectiveLightRays.query_depth` (the fraction linear in γ), the
+weights carry the integral over each texel (:func:`texel_integral`: Eq. 12
+with the map's own edges; :func:`texel_separated_kernel`), and the
+per-query terms (:func:`projective_query_terms`) divide by sin β only.
+NumPy oracles: :func:`query_depth_reference`,
+:func:`texel_integral_reference`, :func:`eq12_weights_reference` (Eq. 12
+as printed).
+
 Everything Dr.Jit on the active variant.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
-from .epipolar_setup import rectified_depth
+from rectify.coords import light_coords_to_world
+from rectify.projective import ProjectiveColumns, ProjectiveRows
+
+from .epipolar_setup import (LightRays, _axial_exit, cell_average, directional_query_terms,
+                             rectified_depth)
 from .fourier_basis import FilteredBasis, filtered_visibility, prefix_filter
+from .light_transport import color, segment_weight
 
 DEPTH_RANGES = ("slice", "full")
 REFERENCES = ("bisectrix", "optimal")
@@ -96,7 +119,11 @@ def reference_angle(beta_lo, beta_hi, how: str = "bisectrix"):
     reference's step to any ray's, both ways) applied to this rate:
     ``tan(β_ref/2) = √(tan(β_lo/2) tan(β_hi/2))``.  It exists unless a view
     ray is parallel to the light (rate 0 or ∞; excluded by the ring), else
-    the bisectrix is used.
+    the bisectrix is used.  For a point or spot light the per-texel optical
+    depth ``σt Δγ ∂(t + r)/∂γ = σt L Δγ tan(β/2) (1 + tan²(γ/2)) / (1 − x)²``
+    (``x = tan(β/2) tan(γ/2)``) is the same rate ``tan(β/2)`` next to the
+    eye (``x → 0``), where the transmittance decays fastest; the same
+    reference serves.
     """
     bisectrix = 0.5 * (beta_lo + beta_hi)
     if how == "bisectrix":
@@ -211,7 +238,10 @@ class Coverage:
     @staticmethod
     def of(queries, rays) -> "Coverage":
         d = rays.d
-        D = dr.gather(mi.Float, rectified_depth(queries, rays).array, queries.slot)
+        if isinstance(rays, ProjectiveLightRays):
+            D = rays.query_depth(queries)
+        else:
+            D = dr.gather(mi.Float, rectified_depth(queries, rays).array, queries.slot)
         D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, float(d))
         k0 = dr.minimum(mi.UInt32(D), d - 1)
         return Coverage(d, queries.row * d + k0, D - mi.Float(k0), D - 1.0)
@@ -267,3 +297,271 @@ def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.F
     """Σ_g w_g V(g, β_q) clip(D − g, 0, 1) per query: the lit texels
     exactly, the series texels through the filter (:func:`series_sum`)."""
     return cover.sum(dr.select(smap.lit, w, 0.0)) + series_sum(smap, cover, w, V_series)
+
+
+# --------------------------------------------------------------------------
+# Projective rectification (Klehm §4.2): non-uniform texels
+# --------------------------------------------------------------------------
+#
+# Rows are the slices of :class:`~rectify.projective.ProjectiveRows` (equal
+# steps in tan(α − α_mid)); texel ``k`` of every row is the light ray at
+# ``x ∈ [x_k, x_{k+1})`` along the bisectrix (equal steps in 1/x within each
+# of Klehm's splits, :class:`~rectify.projective.ProjectiveColumns`), i.e.
+# ``γ ∈ [x_k, x_{k+1}) / cos φ`` on the row.  The texels are not equally wide,
+# so each carries its own width: the filter weights and the separated kernel
+# hold the exact integral of the kernel over the texel (Eq. 12), and the
+# per-query factor is 1/sin β alone.
+
+@dataclass(eq=False)
+class ProjectiveLightRays:
+    """``d`` light rays (texels) per row with the edges of
+    :class:`~rectify.projective.ProjectiveColumns` (module section above).
+
+    Has the attributes of :class:`~integrators.epipolar_setup.LightRays`
+    that :func:`~integrators.epipolar_setup.light_side_factor` and
+    :func:`~integrators.epipolar_setup.directional_query_terms` read
+    (``d``, ``lanes``, ``h``, ``h_ref``; ``delta_gamma`` is each row's
+    *mean* texel width); :meth:`start` refuses, so that the functions of
+    equal-width light rays (sub-rays, rectified depth) cannot be fed these
+    by mistake: use :meth:`positions`, :meth:`widths` and :meth:`query_depth`."""
+    d: int
+    columns: ProjectiveColumns
+    inv_cos: mi.Float       # (n,) 1/cos φ of each row: γ = x/cos φ
+    x_edges: mi.Float       # (d + 1,)
+    x_widths: mi.Float      # (d,) x_{k+1} − x_k (from float64)
+    gamma_max: mi.Float     # (n,) last edge of each row
+    delta_gamma: mi.Float   # (n,) mean texel width of each row
+    h: mi.Float = None      # (n·d,) axial exit h(α, γ) of the light ray through each centre
+    h_ref: mi.Float = None  # (n,) smallest finite h of the row
+
+    def start(self, s):
+        raise TypeError("projective texels are not equally wide: use positions()/widths()")
+
+    def lanes(self, per_ray: int = 1):
+        """(row s, texel g, sub-ray m) of ``n·d·per_ray`` lanes."""
+        return LightRays.lanes(self, per_ray)
+
+    def positions(self, offset: float = 0.5):
+        """(row, γ) of every texel at ``offset`` ∈ [0, 1] across it *in
+        column space* (0: its start, 1: its end, 0.5: the light ray through
+        the texel's centre, the middle in 1/x), (n·d,) lanes."""
+        s, g, _ = self.lanes()
+        if offset in (0.0, 1.0):
+            x = dr.gather(mi.Float, self.x_edges, g + int(offset))
+        else:
+            a = dr.rcp(dr.gather(mi.Float, self.x_edges, g))
+            b = dr.rcp(dr.gather(mi.Float, self.x_edges, g + 1))
+            x = dr.rcp(dr.lerp(a, b, offset))
+        return s, dr.gather(mi.Float, self.inv_cos, s) * x
+
+    def widths(self) -> mi.Float:
+        """(n·d,) γ-width of every texel."""
+        s, g, _ = self.lanes()
+        return dr.gather(mi.Float, self.inv_cos, s) * dr.gather(mi.Float, self.x_widths, g)
+
+    def query_depth(self, queries) -> mi.Float:
+        """D (Q,): each query's end point as a fractional texel index, the
+        fraction linear in γ within the texel (as the uniform rectified
+        depth); x_end = γ_end cos φ of the query's row, found by bisection
+        in the shared edge table."""
+        x = queries.gamma_end / dr.gather(mi.Float, self.inv_cos, queries.row)
+        edges = self.x_edges
+        d = self.d
+        k = mi.UInt32(dr.binary_search(
+            0, d, lambda i: dr.gather(mi.Float, edges, dr.minimum(i, d)) <= x))  # first edge > x
+        k = dr.clip(mi.Int32(k) - 1, 0, d - 1)
+        k = mi.UInt32(k)
+        x0 = dr.gather(mi.Float, edges, k)
+        f = (x - x0) / dr.gather(mi.Float, self.x_widths, k)
+        return dr.clip(mi.Float(k) + dr.clip(f, 0.0, 1.0), 0.0, float(d))
+
+
+def query_depth_reference(queries, rays: ProjectiveLightRays) -> np.ndarray:
+    """NumPy oracle of :meth:`ProjectiveLightRays.query_depth` (float64)."""
+    edges = rays.columns.edges
+    x = np.asarray(queries.gamma_end, np.float64) / np.asarray(rays.inv_cos,
+                                                               np.float64)[np.asarray(queries.row)]
+    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    f = np.clip((x - edges[k]) / (edges[k + 1] - edges[k]), 0.0, 1.0)
+    return np.clip(k + f, 0.0, len(edges) - 1)
+
+
+def projective_x_range(queries, rows: ProjectiveRows, far_margin: float = 1e-5,
+                       min_ratio: float = 1e-5):
+    """(x_lo, x_hi): the range of x = γ cos φ the queries' camera rays span
+    on their rows, from the start on the near plane (t_near) to the end;
+    the map is fitted to it (Klehm fits it to the frustum corners).  x_lo is
+    at least ``min_ratio`` x_hi (a camera without near plane)."""
+    inv_cos = mi.Float(rows.inv_cos[np.asarray(queries.slice_index)].astype(np.float32))
+    c = dr.gather(mi.Float, inv_cos, queries.row)
+    x_start = queries.t_near * dr.sin(queries.beta) / c
+    x_end = queries.gamma_end / c
+    x_hi = float(dr.max(x_end)[0]) * (1.0 + far_margin)
+    x_lo = float(dr.min(x_start)[0]) * (1.0 - far_margin)
+    return max(x_lo, min_ratio * x_hi), x_hi
+
+
+def projective_light_rays(params, queries, rows: ProjectiveRows,
+                          columns: ProjectiveColumns) -> ProjectiveLightRays:
+    """The texels of every row (their γ) and where the light ray through
+    each texel centre leaves the medium box toward the light (h; +inf if it
+    misses the box), as :func:`~integrators.epipolar_setup.light_ray_grid`."""
+    inv_cos64 = rows.inv_cos[np.asarray(queries.slice_index)]
+    inv_cos = mi.Float(inv_cos64.astype(np.float32))
+    e = columns.edges
+    rays = ProjectiveLightRays(
+        d=columns.d, columns=columns, inv_cos=inv_cos,
+        x_edges=mi.Float(e.astype(np.float32)),
+        x_widths=mi.Float(np.diff(e).astype(np.float32)),
+        gamma_max=mi.Float((inv_cos64 * e[-1]).astype(np.float32)),
+        delta_gamma=mi.Float((inv_cos64 * (e[-1] - e[0]) / columns.d).astype(np.float32)))
+    frame = queries.frame
+    s, gamma = rays.positions(0.5)
+    base = light_coords_to_world(frame, dr.gather(mi.Float, queries.alpha, s), gamma, 0.0)
+    h, hits = _axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
+    rays.h = dr.select(hits, h, dr.inf)
+    rays.h_ref = dr.full(mi.Float, dr.inf, queries.n)
+    dr.scatter_reduce(dr.ReduceOp.Min, rays.h_ref, rays.h, s)
+    rays.h_ref = dr.select(dr.isfinite(rays.h_ref), rays.h_ref, 0.0)
+    dr.eval(rays.h, rays.h_ref)
+    return rays
+
+
+def texel_blocker_angles(read, params, queries, rays: ProjectiveLightRays, *args) -> mi.Float:
+    """β_b (n·d) of the light ray through every texel centre, by a blocker
+    reader of equal-width light rays (``trace_blocker_angles``,
+    ``shadow_map_blocker_angles`` of :mod:`integrators.epipolar_setup`,
+    called with ``*args`` after the rays): every texel is handed to it as
+    a row of its own with one light ray centred on the texel's."""
+    s, gamma = rays.positions(0.5)
+    w = rays.widths()
+    single = LightRays(1, gamma + 0.5 * w, w, None, None, gamma_lo=gamma - 0.5 * w)
+    per_texel = replace(queries, n=queries.n * rays.d,
+                        alpha=dr.gather(mi.Float, queries.alpha, s))
+    return read(params, per_texel, single, *args)
+
+
+# -- texel integrals of the kernel (Eq. 12) --
+
+def texel_integral(gamma_lo, width, c):
+    """∫ e^{-c γ} dγ over the texel [γ_lo, γ_lo + width]:
+    ``e^{-c γ_lo} · width · φ(c · width)`` (φ:
+    :func:`~integrators.epipolar_setup.cell_average`, stable for c → 0).
+
+    With c = σt (1 − cos β)/sin β = σt tan(β/2) (the joined camera- and
+    light-side decay of a directional light per unit γ) this is, times
+    σt/sin β, Klehm's Eq. 12 weight σt ∫_texel T dt =
+    T(start)·(1 − T(across)) of the texel along the reference ray; here
+    the texel edges come from the projective map itself (any spacing)
+    instead of Eq. 12's geometric progression (:func:`eq12_weights_reference`)."""
+    return dr.exp(-c * gamma_lo) * width * cell_average(c * width)
+
+
+def texel_integral_reference(gamma_lo, width, c) -> np.ndarray:
+    """NumPy oracle of :func:`texel_integral` (float64, the difference of
+    the antiderivative)."""
+    g0, w, c = (np.asarray(v, np.float64) for v in (gamma_lo, width, c))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        exact = (np.exp(-c * g0) - np.exp(-c * (g0 + w))) / c
+    return np.where(c * w < 1e-12, np.exp(-c * g0) * w, exact)
+
+
+def eq12_weights_reference(delta: float, ratio: float, sigma_t: float, n: int) -> np.ndarray:
+    """Klehm's Eq. 12 as printed: ``w'_i = e^{-Δσt Σ_{j=1}^{i-1} d^{j-1}}
+    (1 − e^{-Δσt d^{i-1}})``, i = 1..n -- texel i spanning Δ·d^{i-1} along
+    the ray (a geometric progression of ratio ``d``, estimated by Klehm
+    from the first three texel centres).  The projective map's texels are
+    a geometric progression only approximately (the map preserves the cross
+    ratio, not the ratio of neighbouring lengths); :func:`texel_integral`
+    uses the exact edges."""
+    lengths = delta * float(ratio) ** np.arange(n)
+    starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
+    return np.exp(-sigma_t * starts) * -np.expm1(-sigma_t * lengths)
+
+
+def eq12_ratio_reference(t_centres) -> float:
+    """Klehm's factor d from the first three texel centres along a ray:
+    the ratio of the distances between them, (t_2 − t_1)/(t_1 − t_0)."""
+    t = np.asarray(t_centres, np.float64)
+    return float((t[2] - t[1]) / (t[1] - t[0]))
+
+
+#: Gauss–Legendre nodes and weights on [0, 1] (2 points: exact to degree 3;
+#: for e^{-c γ} over a texel of width w the relative error is (c w)^4/4320,
+#: below 1e-5 for c w < 0.4 -- a texel across which the kernel decays by a
+#: third; the automatic texel counts keep c w far below that)
+GAUSS_NODES = (0.5 - 0.5 / math.sqrt(3.0), 0.5 + 0.5 / math.sqrt(3.0))
+GAUSS_WEIGHTS = (0.5, 0.5)
+
+
+@dataclass(eq=False)
+class _GaussNodes:
+    """The Gauss nodes of every texel as equally-indexed 'light rays'
+    (``2d`` per row) for :func:`~integrators.epipolar_tree.separated_kernel`,
+    which reads ``d``, ``gamma_max`` and ``positions(0.0)``."""
+    rays: ProjectiveLightRays
+
+    @property
+    def d(self) -> int:
+        return self.rays.d * len(GAUSS_NODES)
+
+    @property
+    def gamma_max(self):
+        return self.rays.gamma_max
+
+    def positions(self, offset: float = 0.0):
+        s, lo = self.rays.positions(0.0)
+        w = self.rays.widths()
+        n_g = len(GAUSS_NODES)
+        j = dr.arange(mi.UInt32, dr.width(lo) * n_g)
+        texel, node = j // n_g, j % n_g
+        node_x = dr.gather(mi.Float, mi.Float(np.asarray(GAUSS_NODES, np.float32)), node)
+        return (dr.gather(mi.UInt32, s, texel),
+                dr.gather(mi.Float, lo, texel) + node_x * dr.gather(mi.Float, w, texel))
+
+
+def texel_separated_kernel(separate, params, queries, rays: ProjectiveLightRays, rank: int,
+                           tol: float):
+    """A (n, d, C, N): ∫_texel A_n(γ) dγ of every texel (Gauss–Legendre,
+    :data:`GAUSS_NODES`, on the exact Nyström extension of ``separate``,
+    i.e. :func:`~integrators.epipolar_tree.separated_kernel`, evaluated at
+    each texel's nodes)
+    and B (n, r, C, N) at the queries' β, as ``separate`` returns it.
+    Σ_n A_n B_n(β) is then the exact texel integral of K(·, β) (to the SVD
+    tolerance): no per-query cell factor."""
+    A3, B = separate(params, queries, _GaussNodes(rays), rank, tol)
+    n, d, C, N = queries.n, rays.d, A3.shape[2], A3.shape[3]
+    n_g = len(GAUSS_NODES)
+    CN = C * N
+    j = dr.arange(mi.UInt32, n * d * CN)
+    texel, cn = j // CN, j % CN
+    flat = mi.Float(A3.array)
+    A = dr.zeros(mi.Float, n * d * CN)
+    for g, wg in enumerate(GAUSS_WEIGHTS):
+        A += wg * dr.gather(mi.Float, flat, (texel * n_g + g) * CN + cn)
+    A *= dr.gather(mi.Float, rays.widths(), texel)
+    return mi.TensorXf(A, shape=(n, d, C, N)), B
+
+
+def projective_query_terms(params, cap, queries, rays: ProjectiveLightRays, V_near=1.0):
+    """Per-query factors of the projective map (directional light):
+    :func:`~integrators.epipolar_setup.directional_query_terms` with the
+    view factor 1/sin β (each texel carries its own width) and the near
+    term for a map that starts at its first edge γ_0 (t_0 = γ_0 / sin β)
+    instead of at the eye: the rectified sum covers [t_0, t_end], the
+    camera ray [t_near, t_end], so ∫_{t_0}^{t_near} (signed) is removed,
+    lit as the first texel says (``V_near``) and with its light-side
+    factor."""
+    terms = directional_query_terms(params, cap, queries, rays, V_near)
+    sigma_t = color(params.medium.sigma_t)
+    sin_b = dr.sin(queries.beta)
+    gamma0 = dr.gather(mi.Float, rays.inv_cos, queries.row) * dr.gather(mi.Float, rays.x_edges, 0)
+    t0 = gamma0 / sin_b
+    first = queries.row * rays.d
+    dh = dr.gather(mi.Float, rays.h, first) - dr.gather(mi.Float, rays.h_ref, queries.row)
+    k = sigma_t * (1.0 - dr.cos(queries.beta))
+    near = V_near * dr.exp(-sigma_t * dh) * (segment_weight(k, 0.0, queries.t_near)
+                                             - segment_weight(k, 0.0, t0))
+    near = dr.select(dr.isfinite(dh), near, 0.0)
+    view = dr.rcp(sin_b)
+    return replace(terms, view=mi.Color3f(view, view, view), near=near)
