@@ -94,6 +94,7 @@ from rectify.coords import direction_to_alpha_beta
 from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays,
                              first_blocker, gray, sub_ray_gamma)
 from .integrand_svd import SAMPLES, separate_integrand
+from .kernel_table import tabulated_terms
 from .light_transport import (_slabs, color, phase_eval, point, sample_light, segment_box,
                               segment_weight)
 
@@ -671,7 +672,8 @@ def local_separated_kernel(params, queries: EpipolarQueries, rays: LocalLightRay
     N = max(s[2].shape[1] for s in seps)
     C = len(channels)
     bounds = interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta)
-    b_queries = Angles.of(queries.beta)
+    tan_half = dr.tan(0.5 * queries.beta)
+    x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
     A_cells = dr.zeros(mi.Float, M * C * N)
     B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
     lane_a = dr.arange(mi.UInt32, M) * (C * N)
@@ -681,8 +683,12 @@ def local_separated_kernel(params, queries: EpipolarQueries, rays: LocalLightRay
         b_grid = Angles.from_tan_half(mi.Float(np.asarray(x_grid, np.float32)))
         g_grid = Angles.of(mi.Float(g_grid))
         a_terms = nystrom_sums(M, WA, lambda k: kern.cell_mean(b_grid.gather(k), bounds, delta))
-        b_terms = nystrom_sums(dr.width(b_queries.sin), WB,
-                               lambda k: kern.value(b_queries, g_grid.gather(k)))
+        # b_i depends on β alone: tabulated in tan(β/2) with the SVD grid's warp
+        def b_sums(x, kern=kern, g_grid=g_grid, WB=WB):
+            b = Angles.from_tan_half(x)
+            return nystrom_sums(dr.width(x), WB, lambda k: kern.value(b, g_grid.gather(k)))
+        b_terms = tabulated_terms(tan_half, x_lo, x_hi,
+                                  float(sigma_t[ch]) * L * (gamma_hi - gamma_lo), b_sums)
         for i in range(WA.shape[1]):
             dr.scatter(A_cells, a_terms[i], lane_a + c * N + i)
             dr.scatter(B, b_terms[i], lane_b + c * N + i)

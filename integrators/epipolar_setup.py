@@ -83,8 +83,7 @@ Point and spot lights (§9): :func:`epipolar_frame_of`,
 them too, with γ the angle at the light (``rectify`` conventions); the
 rest of the local-light maths (blockers traced from the light, intensity,
 kernel, per-query terms) is in :mod:`integrators.epipolar_local_light`.
-:func:`require_directional` remains for methods that support directional
-lights only.  All Dr.Jit on the active variant; NumPy only for small
+All Dr.Jit on the active variant; NumPy only for small
 host-side tables.
 """
 from __future__ import annotations
@@ -119,18 +118,6 @@ PAD_BETA = 4.0
 # --------------------------------------------------------------------------
 # Frame and slices (§3, §8)
 # --------------------------------------------------------------------------
-
-def require_directional(params, method: str,
-                        missing: str = "Baran 2010 §9 point/spot lights") -> None:
-    """Refuse (ValueError) what is not implemented instead of rendering it
-    wrong; ``missing`` names the paper part that would handle the light."""
-    kind = params.light.kind
-    if kind != "directional":
-        raise ValueError(
-            f"{method}: the scene's light is a {kind} light, but only directional "
-            f"lights are supported by {method} so far ({missing} are not "
-            "implemented); render this scene with raymarch.")
-
 
 def epipolar_frame_of(params) -> EpipolarFrame:
     """The epipolar frame of the camera and the light: directional (§3), or

@@ -25,6 +25,7 @@ from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_
                              light_ray_grid, light_side_factor, rectified_depth,
                              shadow_map_blocker_angles, trace_sub_ray_blockers)
 from .integrand_svd import SAMPLES, separate_integrand
+from .kernel_table import tabulated_terms
 from .partial_sum_tree import integrate_slices
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
@@ -315,36 +316,6 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
     return list(acc)
 
 
-#: samples of a Nyström sum tabulated once per frame (:func:`tabulated_kernel_sum`)
-KERNEL_TABLE = 4096
-
-
-def tabulated_kernel_sum(x: mi.Float, lo: float, hi: float, c: float, table, weights,
-                         sigma_t: float):
-    """:func:`exp_kernel_sum` of every lane of ``x`` ∈ [lo, hi], tabulated.
-
-    Both Nyström parts of :func:`separate_channel` -- a_i(γ) at the s·d
-    light rays and b_i(tan(β/2)) at the queries -- depend on one scalar,
-    so when there are many more lanes than ``KERNEL_TABLE`` the sums are
-    tabulated on ``KERNEL_TABLE`` points uniform in v = log(1 + c·x) (c: the
-    rate of the fastest-decaying exponential, so each term is smooth in v)
-    and interpolated linearly: relative error ≈ (Δv)²/8 ≈ 1e-6, far below
-    the SVD tolerance, for a 64/2 = 32× cheaper stage."""
-    if dr.width(x) < 4 * KERNEL_TABLE:
-        return exp_kernel_sum(x, table, weights, sigma_t)
-    c = max(c, 1e-6 / max(hi, 1e-30))
-    v_lo, v_hi = math.log1p(c * lo), math.log1p(c * hi)
-    if not v_hi > v_lo:
-        v_hi = v_lo + 1e-6
-    v_tab = np.linspace(v_lo, v_hi, KERNEL_TABLE)
-    values = exp_kernel_sum(mi.Float(np.expm1(v_tab) / c), table, weights, sigma_t)
-    u = (dr.log(1.0 + c * x) - v_lo) * ((KERNEL_TABLE - 1) / (v_hi - v_lo))
-    i0 = mi.UInt32(dr.clip(dr.floor(u), 0, KERNEL_TABLE - 2))
-    f = dr.clip(u - mi.Float(i0), 0.0, 1.0)
-    return [dr.lerp(dr.gather(mi.Float, t, i0), dr.gather(mi.Float, t, i0 + 1), f)
-            for t in values]
-
-
 def separated_kernel(params, queries, rays, rank: int, tol: float):
     """A (n, d, C, N) at the start γ_g of every light-ray interval and
     B (n, r, C, N) at the queries' own β (padded slots: 0);
@@ -368,9 +339,10 @@ def separated_kernel(params, queries, rays, rank: int, tol: float):
     lane_b = queries.slot * (C * N)
     for c, (ch, (g_grid, x_grid, WA, WB)) in enumerate(zip(channels, seps)):
         st = float(sigma_t[ch])
-        a_terms = tabulated_kernel_sum(gamma, 0.0, gamma_max, st * float(np.max(x_grid)),
-                                       x_grid, WA, st)
-        b_terms = tabulated_kernel_sum(tan_half, x_lo, x_hi, st * gamma_max, g_grid, WB, st)
+        a_terms = tabulated_terms(gamma, 0.0, gamma_max, st * float(np.max(x_grid)),
+                                  lambda x: exp_kernel_sum(x, x_grid, WA, st))
+        b_terms = tabulated_terms(tan_half, x_lo, x_hi, st * gamma_max,
+                                  lambda x: exp_kernel_sum(x, g_grid, WB, st))
         for i in range(WA.shape[1]):
             dr.scatter(A, a_terms[i], lane_a + c * N + i)
             dr.scatter(B, b_terms[i], lane_b + c * N + i)

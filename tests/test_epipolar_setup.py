@@ -221,13 +221,6 @@ def test_ring_and_zero_depth_samples_are_no_queries():
     assert np.all(np.minimum(betas, np.pi - betas) >= math.radians(10.0) - 1e-6)
 
 
-def test_only_directional_lights():
-    for light in ("point", "spot"):
-        scene = mi.load_dict(scene_dict(light=light, res=(8, 6)))
-        with pytest.raises(ValueError, match="only directional lights"):
-            es.require_directional(SceneParams.from_scene(scene), "epipolar_tree")
-
-
 # --------------------------------------------------------------------------
 # Point and spot lights (Baran §9; integrators.epipolar_local_light)
 # --------------------------------------------------------------------------

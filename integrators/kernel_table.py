@@ -1,0 +1,48 @@
+"""Tabulated Nyström extensions of the separated kernel (Baran et al. 2010, §6).
+
+The separated kernel K(γ, β) ≈ Σ_i a_i(γ) b_i(β) is extended exactly from its
+64-point SVD grid (:func:`integrators.integrand_svd.extend_nystrom`): every
+a_i or b_i value is a 64-term sum of kernel evaluations.  Each function
+depends on one scalar (the light ray's γ, or the query's β), while there are
+s·d light rays and about a million queries; so when the lanes far outnumber
+``KERNEL_TABLE`` the sums are evaluated on ``KERNEL_TABLE`` points uniform in
+v = log(1 + c·(x − lo)) (c: the rate of the kernel's fastest decay, the same
+warp as the SVD grids, so each term is smooth in v) and interpolated
+linearly: error ≈ (Δv)²/8 · |f''|, measured 2e-7 of a term's range for the
+leading terms and up to 1.4e-4 for the last, most oscillating ones (whose
+singular values are the smallest); rendered images agree with the direct
+sums to relMSE < 1e-6 (``tests/test_kernel_table.py``), for a 64/2 = 32×
+cheaper stage.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+#: points of a tabulated Nyström sum
+KERNEL_TABLE = 4096
+
+
+def tabulated_terms(x: mi.Float, lo: float, hi: float, c: float,
+                    terms_at: Callable[[mi.Float], list]) -> list:
+    """``terms_at(x)`` (a list of N Floats, one per term) at every lane of
+    ``x`` ∈ [lo, hi]: directly when there are fewer than 4·``KERNEL_TABLE``
+    lanes, else from a table uniform in v = log(1 + c·(x − lo)), lerped."""
+    if dr.width(x) < 4 * KERNEL_TABLE:
+        return terms_at(x)
+    lo, hi = float(lo), float(hi)
+    c = max(float(c), 1e-6 / max(hi - lo, 1e-30))
+    v_hi = math.log1p(c * (hi - lo))
+    if not v_hi > 0.0:
+        v_hi = 1e-6
+    v_tab = np.linspace(0.0, v_hi, KERNEL_TABLE)
+    values = terms_at(mi.Float(lo + np.expm1(v_tab) / c))
+    u = dr.log(1.0 + c * dr.maximum(x - lo, 0.0)) * ((KERNEL_TABLE - 1) / v_hi)
+    i0 = mi.UInt32(dr.clip(dr.floor(u), 0, KERNEL_TABLE - 2))
+    f = dr.clip(u - mi.Float(i0), 0.0, 1.0)
+    return [dr.lerp(dr.gather(mi.Float, t, i0), dr.gather(mi.Float, t, i0 + 1), f)
+            for t in values]
