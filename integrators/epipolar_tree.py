@@ -20,10 +20,11 @@ from .epipolar_local_light import (CHECK_POINTS, MAX_RANK,  # shared with the lo
                                    local_separated_kernel, shadow_map_local_blocker_angles,
                                    trace_local_blocker_angles)
 from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_terms,
-                             first_leaf_visibility, gather_queries, gray,
-                             last_interval_correction, last_interval_visibility,
+                             first_leaf_visibility, gather_queries,
+                             gray, last_interval_correction, last_interval_visibility,
                              light_ray_grid, light_side_factor, rectified_depth,
-                             shadow_map_blocker_angles, trace_sub_ray_blockers)
+                             shadow_map_blocker_angles, sweep_magnitude,
+                             trace_sub_ray_blockers)
 from .integrand_svd import SAMPLES, separate_integrand
 from .kernel_table import tabulated_terms
 from .partial_sum_tree import integrate_slices
@@ -191,6 +192,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms = (local_query_terms(params, cap, queries, rays, colour, V0) if local
                      else directional_query_terms(params, cap, queries, rays, V0))
             terms.last = last_interval_correction(queries, A, B, L, last)
+            terms.magnitude = sweep_magnitude(queries, A, B, L)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.append(value)
         self.last_interval_traced = last.traced
