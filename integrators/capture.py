@@ -21,8 +21,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .light_transport import (box_exit_distance, color, light_transmittance, point,
-                              segment_box, visible_exact)
+from .light_transport import (box_exit_distance, color, first_blocker, light_transmittance,
+                              point, segment_box, visible_exact)
 
 #: null-BSDF surfaces a camera or light ray may pass before we give up.
 MAX_NULL_CROSSINGS = 4
@@ -283,8 +283,12 @@ def capture_shadow_map(params, camera_capture: CameraCapture, res: int) -> Shado
         sm = ShadowMap(kind="cube", res=res, depth=mi.Float(0), frames=frames,
                        tan_half=1.0, origin=np.asarray(light.position))
     o, d = sm.texel_rays()
-    si, t = first_surface(params.scene, mi.Ray3f(o, mi.Vector3f(d)))
-    sm.depth = dr.select(si.is_valid(), t, dr.inf)
+    # the occluders exact visibility sees (the medium box excepted), with
+    # preliminary intersections only: a depth is all a texel keeps
+    o, d = mi.Point3f(o), mi.Vector3f(d)
+    hit, p = first_blocker(params, o, d)
+    t = dr.dot(mi.Vector3f(p - o), d) * dr.rcp(dr.squared_norm(d))
+    sm.depth = dr.select(hit, t, dr.inf)
     sm.bias = 1e-4 * extent
     dr.eval(sm.depth)
     return sm

@@ -91,11 +91,11 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta
 
-from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays,
-                             first_blocker, gray, sub_ray_gamma)
+from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays, gray,
+                             sub_ray_gamma)
 from .integrand_svd import SAMPLES, separate_integrand
 from .kernel_table import tabulated_terms
-from .light_transport import (_slabs, color, phase_eval, point, sample_light, segment_box,
+from .light_transport import (_slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
                               segment_weight)
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
@@ -315,7 +315,7 @@ def trace_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLigh
                                k: int = 1, seed: int = 0, lit=None) -> mi.Float:
     """β_b = the eye's angle of the first blocker of ``k`` sub-rays per light
     ray, each traced with Mitsuba from ``p_l`` outward
-    (:func:`~integrators.epipolar_setup.first_blocker`: split at the medium
+    (:func:`~integrators.light_transport.first_blocker`: split at the medium
     box, which does not block); π where nothing blocks the sub-ray.  (n·d·k,)
     lanes in (row, light ray, sub-ray) order; only the ``lit`` sub-rays are
     traced (the others carry no light: π)."""

@@ -104,8 +104,8 @@ from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, alpha_to_slice, make_slices
 
 from .capture import CameraCapture
-from .light_transport import (_slabs, box_segments, color, phase_eval, point, sample_light,
-                              segment_box, segment_weight, visible_exact)
+from .light_transport import (_slabs, color, first_blocker, phase_eval, point,
+                              sample_light, segment_box, segment_weight, visible_exact)
 from .partial_sum_tree import BlockerModes
 from .raymarch import auto_spacing, march
 
@@ -384,31 +384,6 @@ def _light_top(params, frame: EpipolarFrame) -> float:
                         for y in (bb.min[1], bb.max[1]) for z in (bb.min[2], bb.max[2])])
     u = (corners - params.camera.origin) @ frame.axis
     return float(np.max(u)) + 1e-2 * params.scene_extent
-
-
-def first_blocker(params, origin, d):
-    """(hit, point): first surface on the ray ``origin + s·d`` (s ≥ 0), the
-    medium box excepted -- the occluders :func:`~integrators.light_transport.visible_exact`
-    sees.  Like it, the ray is traced in pieces split at the box crossings
-    (each stopped ``BOX_EPS`` short of the box), whose origins stay exactly
-    on the line: re-spawning at the box (:func:`~integrators.capture.first_surface`)
-    offsets the ray along the box normal, which moves grazing hits by
-    ~1e-4·extent/tan(angle)."""
-    inf = dr.full(mi.Float, dr.inf, dr.width(origin.x))
-    _, t_in, t_out = segment_box(params, origin, d, inf)
-    hit = mi.Bool(False)
-    p = mi.Point3f(origin)
-    for a, b in box_segments(params, t_in, t_out, inf):
-        active = ~hit & (b > a)
-        ray = mi.Ray3f(origin + d * a, d)
-        ray.maxt = dr.maximum(b - a, 0.0)
-        # only the distance is needed: the preliminary intersection skips
-        # computing the full surface interaction
-        pi = params.scene.ray_intersect_preliminary(ray, active=active)
-        found = active & pi.is_valid()
-        p = dr.select(found, ray.o + ray.d * pi.t, p)
-        hit |= found
-    return hit, p
 
 
 #: |second difference| of the blocker indices (in queries) at neighbouring

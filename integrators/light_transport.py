@@ -124,3 +124,28 @@ def segment_weight(sigma_t, a, b):
     series = L * (1 - 0.5 * x + x * x / 6)
     exact = (1 - dr.exp(-x)) * dr.rcp(dr.select(small, 1.0, sigma_t))
     return dr.exp(-sigma_t * a) * dr.select(small, series, exact)
+
+
+def first_blocker(params, origin, d):
+    """(hit, point): first surface on the ray ``origin + s·d`` (s ≥ 0), the
+    medium box excepted -- the occluders :func:`~integrators.light_transport.visible_exact`
+    sees.  Like it, the ray is traced in pieces split at the box crossings
+    (each stopped ``BOX_EPS`` short of the box), whose origins stay exactly
+    on the line: re-spawning at the box (:func:`~integrators.capture.first_surface`)
+    offsets the ray along the box normal, which moves grazing hits by
+    ~1e-4·extent/tan(angle)."""
+    inf = dr.full(mi.Float, dr.inf, dr.width(origin.x))
+    _, t_in, t_out = segment_box(params, origin, d, inf)
+    hit = mi.Bool(False)
+    p = mi.Point3f(origin)
+    for a, b in box_segments(params, t_in, t_out, inf):
+        active = ~hit & (b > a)
+        ray = mi.Ray3f(origin + d * a, d)
+        ray.maxt = dr.maximum(b - a, 0.0)
+        # only the distance is needed: the preliminary intersection skips
+        # computing the full surface interaction
+        pi = params.scene.ray_intersect_preliminary(ray, active=active)
+        found = active & pi.is_valid()
+        p = dr.select(found, ray.o + ray.d * pi.t, p)
+        hit |= found
+    return hit, p

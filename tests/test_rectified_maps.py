@@ -80,7 +80,7 @@ What the numbers say:
   shrinking only like ~texel^0.6; elsewhere it is 0.05-0.2 % at 2048².
   ``traced`` has none of this.
 - Aside (why ``explained`` uses the map's tracer): tracing the same
-  texel-centre lines with :func:`~integrators.epipolar_setup.first_blocker`
+  texel-centre lines with :func:`~integrators.light_transport.first_blocker`
   instead gives a different first leaf on 1.4 % of the grove's light rays at
   1024², because :func:`~integrators.capture.first_surface` re-spawns the
   map's rays where they enter the null medium box, offset ~2.4 mm along the
