@@ -27,6 +27,7 @@ import os
 import statistics
 import time
 from contextlib import contextmanager, nullcontext
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -433,24 +434,43 @@ __all__ = ["ROOT", "RESULTS", "REFERENCE_STEPS", "BLOCKS", "scene_file", "resolu
            "markdown_table", "base_parser", "scenes_of", "repeats_of", "savefig", "pyplot"]
 
 
+@dataclass
+class Run:
+    """What an experiment's ``main`` starts from (:func:`start_run`)."""
+    args: argparse.Namespace
+    settings: dict
+    repeats: int
+    out: Path
+    scenes: list
+
+
+def start_run(module, argv, default_scenes: list, quick_scenes: list,
+              default_repeats: int = 3) -> Run:
+    """Parse the common options of experiment ``module`` (its ``__doc__``,
+    ``NAME``, ``settings_for``): settings, repeats (``--repeats``, else
+    ``default_repeats``, 1 with ``--quick``), output folder, scenes."""
+    args = base_parser(module.__doc__, default_scenes, quick_scenes).parse_args(argv)
+    repeats = args.repeats or (1 if args.quick else default_repeats)
+    return Run(args, module.settings_for(args.quick), repeats,
+               output_dir(module.NAME, args.out, args.quick), scenes_of(args))
+
+
 def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     """The driver both equal-error speedup experiments share: parse the
     common arguments, run ``module.measure_scene`` on every scene, summarise
     with ``module.speedups``, and write runs.csv, speedup.csv, speedup.json,
     table.md (``module.report``) and speedup.png (``module.plot``) under
     ``results/<module.NAME>/``.  Returns (rows, summary)."""
-    args = base_parser(module.__doc__, module.SCENES, module.QUICK_SCENES).parse_args(argv)
-    s = module.settings_for(args.quick)
-    repeats = repeats_of(args)
-    out = output_dir(module.NAME, args.out, args.quick)
+    run = start_run(module, argv, module.SCENES, module.QUICK_SCENES)
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
     rows = []
-    for name in scenes_of(args):
+    for name in run.scenes:
         rows += module.measure_scene(name, s, repeats, progress=not args.quick)
         print(f"{name}: done (load {load_average()})", flush=True)
     summary = module.speedups(rows)
     text = module.report(rows, summary, s, repeats)
     print(text)
-    settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": scenes_of(args),
+    settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": run.scenes,
                 "reference": reference_note(s["reference_steps"]),
                 "conventions": {**conventions,
                                 "scattering": "integrator.timings['scattering'] (median)",
@@ -473,6 +493,30 @@ def scene_with_reference(name: str, s: dict, progress: bool, **defines):
     defines = {**resolution(s["width"], s["height"]), **defines}
     ref, info = exact_reference(path, defines, s["reference_steps"], progress=progress)
     return load(path, defines), ref, info
+
+
+def speedup_text(r: dict) -> str:
+    """``r['speedup']`` with its bound (``>=``/``<=``; ``?`` if unknown)."""
+    prefix = {"=": "", ">=": ">= ", "<=": "<= "}.get(r["bound"], "? ")
+    return prefix + fmt(r["speedup"]) + "x"
+
+
+def scene_grid(scenes: list, cols: int, height: float):
+    """(figure, [(axes, scene), ...]): one log-log panel per scene, ``cols``
+    per row; unused panels switched off."""
+    plt = pyplot()
+    cols = min(cols, len(scenes))
+    nrows = math.ceil(len(scenes) / cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, height * nrows), squeeze=False)
+    for ax in list(axes.flat)[len(scenes):]:
+        ax.axis("off")
+    return fig, list(zip(axes.flat, scenes))
+
+
+def mark_at_error(ax, r: dict, marker: str, **kw) -> None:
+    """A method's (paper time, relMSE) point and a dashed line at its error."""
+    ax.plot([r["paper_s"]], [r["relmse_b1"]], marker, label=r["setting"], **kw)
+    ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")
 
 
 def style_loglog(ax, title: str, xlabel: str, ylabel: str) -> None:

@@ -38,6 +38,8 @@ Writes ``results/fourier_scene_independence/``: ``scenes.csv``,
 """
 from __future__ import annotations
 
+import sys
+
 import statistics
 import time
 
@@ -250,15 +252,13 @@ def report(rows, summary, s, repeats) -> str:
 
 
 def main(argv=None):
-    args = c.base_parser(__doc__, SUITE, QUICK_SCENES).parse_args(argv)
-    s = settings_for(args.quick)
-    repeats = c.repeats_of(args)
-    out = c.output_dir(NAME, args.out, args.quick)
-    rows = measure(c.scenes_of(args), s, repeats, progress=not args.quick)
+    run = c.start_run(sys.modules[__name__], argv, SUITE, QUICK_SCENES)
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
+    rows = measure(run.scenes, s, repeats, progress=not args.quick)
     summary = ratios(rows)
     text = report(rows, summary, s, repeats)
     print(text)
-    settings = {"name": NAME, **s, "repeats": repeats, "scenes": c.scenes_of(args),
+    settings = {"name": NAME, **s, "repeats": repeats, "scenes": run.scenes,
                 "target_ratio": TARGET_RATIO,
                 "conventions": {"scattering": "integrator.timings['scattering'] (median)",
                                 "paper": "scattering minus the 'blockers' stage",

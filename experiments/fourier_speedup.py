@@ -191,11 +191,6 @@ def speedups(rows: list[dict]) -> list[dict]:
 # Report
 # --------------------------------------------------------------------------
 
-def speedup_text(r: dict) -> str:
-    prefix = {"=": "", ">=": ">= ", "<=": "<= "}.get(r["bound"], "? ")
-    return prefix + c.fmt(r["speedup"]) + "x"
-
-
 def speedup_table(summary: list[dict]) -> str:
     header = ["scene", "filter", "filter relMSE", "baseline", "sweep value @ equal error",
               *[f"speedup {k}" for k in CONVENTIONS]]
@@ -209,7 +204,7 @@ def speedup_table(summary: list[dict]) -> str:
             c.fmt(p["baseline_sweep_at_equal_error"], 4) + \
             (" steps" if base == "raymarch" else " light rays")
         body.append([scene, filt, c.fmt(p["filter_relmse_b1"]), base, sweep,
-                     *(speedup_text(by[k]) for k in CONVENTIONS)])
+                     *(c.speedup_text(by[k]) for k in CONVENTIONS)])
     return c.markdown_table(header, body)
 
 
@@ -243,15 +238,12 @@ def stage_table(rows: list[dict]) -> str:
 def plot(path, rows: list[dict]) -> None:
     """Per scene: relMSE vs 'paper' time of both baselines' sweeps and the
     filters; dashed lines at the filters' errors."""
-    plt = c.pyplot()
     scenes = [s for s in dict.fromkeys(r["scene"] for r in rows)
               if any(r["scene"] == s and r["status"] == "ok" for r in rows)]
     if not scenes:
         return
-    cols = min(3, len(scenes))
-    nrows = math.ceil(len(scenes) / cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.3 * nrows), squeeze=False)
-    for ax, scene in zip(axes.flat, scenes):
+    fig, panels = c.scene_grid(scenes, 3, 3.3)
+    for ax, scene in panels:
         ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok"]
         for base, style in zip(BASELINES, ("o-", "s-")):
             pts = sorted((r for r in ok if r["integrator"] == base),
@@ -259,12 +251,9 @@ def plot(path, rows: list[dict]) -> None:
             ax.plot([r["paper_s"] for r in pts], [r["relmse_b1"] for r in pts], style, ms=3,
                     label=base)
         for r, m in zip((r for r in ok if r["setting"] in FILTERS), "*D"):
-            ax.plot([r["paper_s"]], [r["relmse_b1"]], m, ms=8, label=r["setting"])
-            ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")
+            c.mark_at_error(ax, r, m, ms=8)
         c.style_loglog(ax, scene, "time [s] ('paper': shadow maps excluded)",
                         "relMSE vs exact")
-    for ax in list(axes.flat)[len(scenes):]:
-        ax.axis("off")
     c.savefig(fig, path)
 
 

@@ -53,6 +53,8 @@ and :mod:`experiments.fourier_speedup`.
 """
 from __future__ import annotations
 
+import sys
+
 import math
 from contextlib import contextmanager
 
@@ -337,11 +339,9 @@ def plot(path, rows: list[dict]) -> None:
 
 
 def main(argv=None):
-    args = c.base_parser(__doc__, [SCENE], [SCENE]).parse_args(argv)
-    s = settings_for(args.quick)
-    repeats = c.repeats_of(args)
-    out = c.output_dir(NAME, args.out, args.quick)
-    scene_name = c.scenes_of(args)[0]
+    run = c.start_run(sys.modules[__name__], argv, [SCENE], [SCENE])
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
+    scene_name = run.scenes[0]
     rows = measure(scene_name, s, repeats, progress=not args.quick)
     kernel = kernel_regions(s, repeats)
     text = report(rows, kernel, s, repeats, scene_name)

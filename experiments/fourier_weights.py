@@ -40,6 +40,8 @@ Writes ``results/fourier_weights/``: ``weights.csv``, ``weights.json``,
 """
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from episcatter import metrics
@@ -192,11 +194,9 @@ def report(rows, s, repeats, scene_name, size) -> str:
 
 
 def main(argv=None):
-    args = c.base_parser(__doc__, [SCENE], [SCENE]).parse_args(argv)
-    s = settings_for(args.quick)
-    repeats = c.repeats_of(args)
-    out = c.output_dir(NAME, args.out, args.quick)
-    scene_name = c.scenes_of(args)[0]
+    run = c.start_run(sys.modules[__name__], argv, [SCENE], [SCENE])
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
+    scene_name = run.scenes[0]
     path = c.scene_file(scene_name)
     size = scene_size(path, c.resolution(s["width"], s["height"]))
     rows = []

@@ -27,6 +27,8 @@ Writes ``results/tree_accuracy/``: ``accuracy.csv``, ``accuracy.json``,
 """
 from __future__ import annotations
 
+import sys
+
 from . import common as c
 
 NAME = "tree_accuracy"
@@ -196,12 +198,10 @@ def plot_maps(path, maps: dict) -> None:
 
 
 def main(argv=None) -> list[dict]:
-    args = c.base_parser(__doc__, SUITE, QUICK_SCENES).parse_args(argv)
-    s = settings_for(args.quick)
-    repeats = c.repeats_of(args)
-    out = c.output_dir(NAME, args.out, args.quick)
+    run = c.start_run(sys.modules[__name__], argv, SUITE, QUICK_SCENES)
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
     rows, maps = [], {}
-    for name in c.scenes_of(args):
+    for name in run.scenes:
         rows += measure_scene(name, s, repeats, progress=not args.quick, maps=maps)
         print(f"{name}: done (load {c.load_average()})", flush=True)
     note = c.reference_note(s["reference_steps"])
@@ -216,7 +216,7 @@ def main(argv=None) -> list[dict]:
             "towards 1.\n\n" + table(rows))
     print(text)
     settings = {"name": NAME, **s, "repeats": repeats, "methods": METHODS,
-                "scenes": c.scenes_of(args), "reference": note, "eps": 1e-2,
+                "scenes": run.scenes, "reference": note, "eps": 1e-2,
                 "blocks": list(c.BLOCKS), "quick": args.quick}
     c.write_csv(out / "accuracy.csv", rows)
     c.write_json(out / "accuracy.json", settings, rows)

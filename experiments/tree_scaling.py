@@ -34,6 +34,8 @@ Writes ``results/tree_scaling/``: ``scaling.csv``, ``slopes.csv``,
 """
 from __future__ import annotations
 
+import sys
+
 import math
 
 import numpy as np
@@ -188,11 +190,10 @@ def report(rows, slopes, s, repeats, scene) -> str:
 
 
 def main(argv=None):
-    args = c.base_parser(__doc__, ["grove"], ["nave_offscreen"]).parse_args(argv)
-    s = settings_for(args.quick)
-    repeats = args.repeats or (1 if args.quick else 5)
-    out = c.output_dir(NAME, args.out, args.quick)
-    scene = c.scenes_of(args)[0]
+    run = c.start_run(sys.modules[__name__], argv, ["grove"], ["nave_offscreen"],
+                      default_repeats=5)
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
+    scene = run.scenes[0]
     path = c.scene_file(scene)
     rows = measure(path, s, repeats, progress=not args.quick)
     slopes = fit_slopes(rows)

@@ -227,11 +227,6 @@ def speedups(rows: list[dict]) -> list[dict]:
 # Report
 # --------------------------------------------------------------------------
 
-def speedup_text(r: dict) -> str:
-    prefix = {"=": "", ">=": ">= ", "<=": "<= "}.get(r["bound"], "")
-    return prefix + c.fmt(r["speedup"]) + "x"
-
-
 def speedup_table(summary: list[dict]) -> str:
     header = ["scene", "tree", "baseline (raymarch visibility)", "tree relMSE",
               "raymarch steps @ equal error", "speedup paper", "speedup scattering",
@@ -245,7 +240,7 @@ def speedup_table(summary: list[dict]) -> str:
         body.append([scene, tree, baseline, c.fmt(p["tree_relmse_b1"]),
                      ("" if p["bound"] == "=" else p["bound"] + " ")
                      + c.fmt(p["raymarch_steps_equal_error"], 4),
-                     *(speedup_text(by[k]) for k in CONVENTIONS),
+                     *(c.speedup_text(by[k]) for k in CONVENTIONS),
                      f">= {p['target']}x" if p["target"] else "-", p["paper"] or "-"])
     return c.markdown_table(header, body)
 
@@ -282,12 +277,8 @@ def stage_table(rows: list[dict]) -> str:
 def plot(path, rows: list[dict]) -> None:
     """Per scene: raymarch time ('paper' convention) vs relMSE over the
     sweep, the trees as points, dashed lines at the trees' errors."""
-    plt = c.pyplot()
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    cols = min(2, len(scenes))
-    nrows = math.ceil(len(scenes) / cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.2 * nrows), squeeze=False)
-    for ax, scene in zip(axes.flat, scenes):
+    fig, panels = c.scene_grid(list(dict.fromkeys(r["scene"] for r in rows)), 2, 3.2)
+    for ax, scene in panels:
         ok = [r for r in rows if r["scene"] == scene and r["status"] == "ok"]
         for baseline, style in zip(BASELINES, ("o-", "o:")):
             rm = sorted((r for r in ok if r["integrator"] == "raymarch"
@@ -297,12 +288,9 @@ def plot(path, rows: list[dict]) -> None:
             for r in rm:
                 ax.annotate(str(r["steps"]), (r["paper_s"], r["relmse_b1"]), fontsize=6)
         for r, m in zip((r for r in ok if r["integrator"] == "epipolar_tree"), "sDv^"):
-            ax.plot([r["paper_s"]], [r["relmse_b1"]], m, label=r["setting"])
-            ax.axhline(r["relmse_b1"], ls="--", lw=0.6, color="gray")
+            c.mark_at_error(ax, r, m)
         c.style_loglog(ax, scene, "scattering time [s] ('paper' convention)",
                         "relMSE vs exact (block 1)")
-    for ax in list(axes.flat)[len(scenes):]:
-        ax.axis("off")
     c.savefig(fig, path)
 
 

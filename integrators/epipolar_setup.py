@@ -106,7 +106,7 @@ from rectify.slices import Slices, alpha_to_slice, make_slices
 from .capture import CameraCapture
 from .light_transport import (_slabs, color, first_blocker, phase_eval, point,
                               sample_light, segment_box, segment_weight, visible_exact)
-from .partial_sum_tree import BlockerModes
+from .partial_sum_tree import BlockerModes, factor_layout
 from .raymarch import auto_spacing, march
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
@@ -615,11 +615,9 @@ def blocker_modes(queries: EpipolarQueries, rays: LightRays, beta_b, k: int) -> 
     :class:`SubRayBlockers` with index bounds) -> depth modes in the
     sweep's index units (module doc), (n, d, k) tensors."""
     s, _, _ = rays.lanes(k)
-    if isinstance(beta_b, SubRayBlockers):
-        index = (searchsorted_rows(queries, s, beta_b.angle) if beta_b.lo is None else
-                 searchsorted_rows(queries, s, beta_b.angle, beta_b.lo, beta_b.hi))
-    else:
-        index = searchsorted_rows(queries, s, beta_b)
+    if not isinstance(beta_b, SubRayBlockers):
+        beta_b = SubRayBlockers(beta_b)
+    index = searchsorted_rows(queries, s, beta_b.angle, beta_b.lo, beta_b.hi)
     b, w = merge_modes(index, k)
     shape = (queries.n, rays.d, k)
     modes = BlockerModes(mi.TensorXf(b, shape=shape), mi.TensorXf(w, shape=shape))
@@ -832,13 +830,9 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
 
 def _factor_layout(x, with_n: bool):
     """(flat array, rows ∈ {1, n}, length, channels, N) of an A/B (``with_n``)
-    or L tensor in the shapes of :mod:`~integrators.partial_sum_tree`."""
-    shape = tuple(x.shape)
-    core = shape[:-1] if with_n else shape
-    N = shape[-1] if with_n else 1
-    if len(core) == 1:                      # (d, N): shared by every row
-        return mi.Float(x.array), 1, core[0], 1, N
-    return mi.Float(x.array), core[0], core[1], core[2] if len(core) == 3 else 1, N
+    or L tensor (:func:`~integrators.partial_sum_tree.factor_layout`)."""
+    rows, length, C, _ = factor_layout(tuple(x.shape), 1 if with_n else 0)
+    return mi.Float(x.array), rows, length, C, x.shape[-1] if with_n else 1
 
 
 def last_interval_correction(queries: EpipolarQueries, A, B, L,

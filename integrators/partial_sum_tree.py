@@ -183,22 +183,27 @@ def _split_modes(S_modes):
     return S_modes, None, (shape[0], shape[1], 1)
 
 
-def _factor_layout(shape, name, n, length, with_n_axis):
-    """(rows ∈ {1, n}, C, has colour axis) of A/B/L (module docstring shapes).
-
-    ``with_n_axis`` is the number of trailing axes (N for A and B, 0 for L)."""
+def factor_layout(shape, with_n_axis: int, name: str = "factor"):
+    """(rows ∈ {1, n}, length, C, has colour axis) of an A/B
+    (``with_n_axis`` = 1: the trailing N axis) or L (0) shape, as the
+    module docstring lists them."""
     core = len(shape) - with_n_axis
     if core == 1 and with_n_axis:          # (d, N): shared by every slice
-        rows, ln, C = 1, shape[0], 1
-    elif core == 2:                        # (n|1, d[, N])
-        rows, ln, C = shape[0], shape[1], 1
-    elif core == 3:                        # (n|1, d, C[, N])
-        rows, ln, C = shape[0], shape[1], shape[2]
-    else:
-        raise ValueError(f"{name} has unsupported shape {shape}")
+        return 1, shape[0], 1, False
+    if core == 2:                          # (n|1, d[, N])
+        return shape[0], shape[1], 1, False
+    if core == 3:                          # (n|1, d, C[, N])
+        return shape[0], shape[1], shape[2], True
+    raise ValueError(f"{name} has unsupported shape {shape}")
+
+
+def _factor_layout(shape, name, n, length, with_n_axis):
+    """(rows ∈ {1, n}, C, has colour axis) of A/B/L, checked against n
+    slices and ``length`` (d or r)."""
+    rows, ln, C, colour = factor_layout(shape, with_n_axis, name)
     if rows not in (1, n) or ln != length:
         raise ValueError(f"{name} shape {shape} does not match n={n}, length {length}")
-    return rows, C, core == 3
+    return rows, C, colour
 
 
 class _Record:

@@ -133,11 +133,17 @@ def test_unshadowed_medium_matches_the_closed_form(sigma_t):
 @pytest.mark.parametrize("sigma_t", [1e-4, 1e-2, 1.0, 10.0])
 @pytest.mark.parametrize("name", ["on_screen", "away_on_screen"])
 def test_thin_and_thick_media_are_finite(sigma_t, name):
-    scene = mi.load_dict(scene_dict(res=(16, 12), sigma_t=sigma_t, **SCENES[name]))
+    finite_layers(sigma_t, SCENES[name])
+
+
+def finite_layers(sigma_t, scene_kwargs) -> dict:
+    """All layers of a 16×12 render, each checked finite and non-negative."""
+    scene = mi.load_dict(scene_dict(res=(16, 12), sigma_t=sigma_t, **scene_kwargs))
     integ = mi.load_dict({"type": "epipolar_tree"})
     layers = {k: np.array(v) for k, v in integ.render_layers(scene).items()}
     for key, img in layers.items():
         assert np.all(np.isfinite(img)) and np.all(img >= 0), key
+    return layers
 
 
 def test_thick_medium_converges():
@@ -294,12 +300,7 @@ def test_unshadowed_point_light_matches_numpy_quadrature(position, phase, sigma_
 @pytest.mark.parametrize("sigma_t", [1e-4, 1e-2, 1.0, 10.0])
 @pytest.mark.parametrize("name", ["point_in_view", "point_at_the_eye", "spot_textured"])
 def test_local_lights_thin_and_thick_media_are_finite(sigma_t, name):
-    scene = mi.load_dict(scene_dict(res=(16, 12), sigma_t=sigma_t, **LOCAL_SCENES[name]))
-    integ = mi.load_dict({"type": "epipolar_tree"})
-    layers = {k: np.array(v) for k, v in integ.render_layers(scene).items()}
-    for key, img in layers.items():
-        assert np.all(np.isfinite(img)) and np.all(img >= 0), key
-    assert layers["scattering"].max() > 0
+    assert finite_layers(sigma_t, LOCAL_SCENES[name])["scattering"].max() > 0
 
 
 @pytest.mark.parametrize("name", ["point_above", "spot"])
