@@ -22,7 +22,13 @@ samples).  Cases:
   scaled by 0.01 ... 10,000, with σt scaled inversely (same optical depths:
   the image must not change; the reference's own deviation from scale 1 is
   listed) and with σt fixed; a point light (intensity · scale², so the
-  image again must not change) in the first variant.
+  image again must not change) in the first variant;
+- ``grazing``: a light grazing the fog box's top face (directional at 6°,
+  point lights at 5° far out and just above the face), the camera just
+  under that face looking away from the light, σt = 0.3 ... 10: most light
+  rays of a slice leave the box far behind the eye, the light-side factor
+  spans e^{±σt·80} (before ``epipolar_setup.row_reference`` bounded it,
+  images were off by up to 1e9).
 
 Per case and method: NaN/Inf pixel count, relMSE (eps 1e-2), max |error|,
 max |error| / max(reference), mean ratio.  ``bounded`` = no NaN/Inf and
@@ -57,16 +63,18 @@ SIGMA_T = 0.3
 # --------------------------------------------------------------------------
 
 def stress_scene(light: dict, sigma_t: float = SIGMA_T, scale: float = 1.0,
-                 res=(64, 48), albedo: float = 0.8) -> dict:
+                 res=(64, 48), albedo: float = 0.8, camera: dict | None = None) -> dict:
     """Scene dict: camera in a fog box (half-size 4), a floor, a blocker
     sphere; every length (and the clip planes) multiplied by ``scale``.
     ``light`` is a directional or point emitter dict (point positions are
-    given at scale 1 and scaled here)."""
+    given at scale 1 and scaled here); ``camera``: origin/target/up
+    (default ``CAMERA``)."""
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
     s = float(scale)
-    cam = {k: [s * v for v in CAMERA[k]] if k != "up" else CAMERA[k] for k in CAMERA}
+    camera = camera or CAMERA
+    cam = {k: [s * v for v in camera[k]] if k != "up" else camera[k] for k in camera}
     light = dict(light)
     if light["type"] == "point":
         light["position"] = [s * v for v in light["position"]]
@@ -175,20 +183,40 @@ def scale_cases(values) -> list[dict]:
     return out
 
 
+#: camera just under the box's top face (y = 4), looking away from a light
+#: that grazes that face: most light rays of a slice leave the box far
+#: behind the eye (epipolar_setup.row_reference)
+UNDER_TOP = {"origin": [0.0, 3.9, 0.0], "target": [3.0, 3.5, 0.0], "up": [0.0, 1.0, 0.0]}
+
+
+def grazing_cases(values) -> list[dict]:
+    """Light grazing the box's top face at 6°, camera under it looking away
+    from the light (``UNDER_TOP``): directional, and a point light far out
+    (5°) and one just above the face, for each σt in ``values``."""
+    sun = directional([math.cos(math.radians(6.0)), -math.sin(math.radians(6.0)), 0.0])
+    lights = [("directional 6°", sun), ("point far (5°)", point([-30.0, 6.5, 0.0], 9000.0)),
+              ("point near the face", point([-5.0, 4.3, 0.0], 9000.0))]
+    return [{"group": "grazing light, camera under the box top", "case": f"{name}, σt = {v:g}",
+             "light": light, "sigma_t": v, "scale": 1.0, "camera": UNDER_TOP}
+            for v in values for name, light in lights]
+
+
 def settings_for(quick: bool) -> dict:
     if quick:
         return {"res": (32, 24), "reference_steps": 256, "sigma_t": [10.0],
-                "scales": [1.0, 1e4], "epipole": True}
+                "scales": [1.0, 1e4], "epipole": True, "grazing_sigma_t": [10.0]}
     return {"res": (64, 48), "reference_steps": c.REFERENCE_STEPS,
             "sigma_t": [1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0, 30.0, 100.0],
-            "scales": [0.01, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4], "epipole": True}
+            "scales": [0.01, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4], "epipole": True,
+            "grazing_sigma_t": [0.3, 1.0, 3.0, 10.0]}
 
 
 def all_cases(s: dict) -> list[dict]:
     cases = epipole_cases(s["res"]) if s["epipole"] else []
     if s.get("quick_subset"):
         cases = cases[:2]
-    return cases + sigma_cases(s["sigma_t"]) + scale_cases(s["scales"])
+    return (cases + sigma_cases(s["sigma_t"]) + scale_cases(s["scales"])
+            + grazing_cases(s.get("grazing_sigma_t", [])))
 
 
 # --------------------------------------------------------------------------
@@ -228,7 +256,8 @@ def run_case(case: dict, s: dict, scale1_refs: dict) -> list[dict]:
     """The reference and both methods on one case (one row per method)."""
     import mitsuba as mi
 
-    scene = mi.load_dict(stress_scene(case["light"], case["sigma_t"], case["scale"], s["res"]))
+    scene = mi.load_dict(stress_scene(case["light"], case["sigma_t"], case["scale"], s["res"],
+                                      camera=case.get("camera")))
     ref, status = render(scene, "raymarch", {"visibility": "exact",
                                              "steps": s["reference_steps"]})
     base = {"group": case["group"], "case": case["case"], "sigma_t": case["sigma_t"],

@@ -91,8 +91,8 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta
 
-from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays, gray,
-                             sub_ray_gamma)
+from .epipolar_setup import (LIGHT_SIDE_RANGE, EpipolarQueries, LightRays, QueryTerms,
+                             auto_light_rays, gray, light_side_gain, sub_ray_gamma)
 from .integrand_svd import SAMPLES, separate_integrand
 from .kernel_table import tabulated_terms
 from .light_transport import (_slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
@@ -100,8 +100,6 @@ from .light_transport import (_slabs, color, first_blocker, phase_eval, point, s
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
 CONE_MARGIN = 1e-4
-#: largest exponent of the per-light-ray factor e^{-σt (L − r_in)} (float32)
-MAX_EXPONENT = 60.0
 #: extra points per axis on which the automatic rank is checked (besides the
 #: grid; also used by the directional kernel of :mod:`integrators.epipolar_tree`)
 CHECK_POINTS = 193
@@ -281,24 +279,30 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))
         scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
-        values = I_mean[c] * scale * ext_clamped(sigma_t[0], depth)
-        values = dr.select(dr.isfinite(rays.r_in), values, 0.0)
+        values = I_mean[c] * scale * light_side_extinction(sigma_t[0], depth)
         L = mi.TensorXf(values, shape=(queries.n, rays.d))
     else:
         out = dr.zeros(mi.Float, n_rays * 3)
         lane = dr.arange(mi.UInt32, n_rays)
         for ch in range(3):
-            v = I_mean[ch] * ext_clamped(sigma_t[ch], depth)
-            dr.scatter(out, dr.select(dr.isfinite(rays.r_in), v, 0.0), lane * 3 + ch)
+            dr.scatter(out, I_mean[ch] * light_side_extinction(sigma_t[ch], depth), lane * 3 + ch)
         L = mi.TensorXf(out, shape=(queries.n, rays.d, 3))
         colour = mi.Color3f(1.0)
     dr.eval(L.array, lit)
     return L, colour, lit
 
 
-def ext_clamped(sigma_t: float, depth):
-    """e^{-σt·depth} with the exponent kept ≤ MAX_EXPONENT (float32)."""
-    return dr.exp(dr.minimum(-float(sigma_t) * depth, MAX_EXPONENT))
+def light_side_extinction(sigma_t: float, depth):
+    """e^{-σt·depth}, depth = L − r_in (NaN/−inf where the light ray misses
+    the box: 0).  A light ray entering the box farther from the light than
+    the eye (depth < 0) is attenuated from there on, so its factor exceeds
+    1; but each of its points x has r ≥ r_in and t ≥ r − L, so it
+    contributes at most e^{-σt (r_in − L)} = e^{σt·depth} of the
+    unattenuated single scattering.  As for a directional light's rows
+    (:func:`~integrators.epipolar_setup.row_reference`), light rays with
+    σt·depth < −c are dropped, which keeps every factor ≤ e^{c}."""
+    e = -float(sigma_t) * depth
+    return dr.select(dr.isfinite(depth) & (e <= LIGHT_SIDE_RANGE), dr.exp(e), 0.0)
 
 
 # --------------------------------------------------------------------------
@@ -667,8 +671,12 @@ def local_separated_kernel(params, queries: EpipolarQueries, rays: LocalLightRay
     gamma_lo = float(dr.min(rays.gamma_lo)[0])
     gamma_hi = float(dr.max(rays.gamma_max)[0])
     beta_lo, beta_hi = float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
+    depth = L - rays.r_in
+    lowest = float(dr.min(dr.select(dr.isfinite(depth), depth, dr.inf))[0])
     seps = [separate_local_channel(params, float(sigma_t[c]), L, x_max, gamma_lo, gamma_hi,
-                                   beta_lo, beta_hi, rank, tol) for c in channels]
+                                   beta_lo, beta_hi, rank,
+                                   tol / light_side_gain(float(sigma_t[c]), lowest))
+            for c in channels]
     N = max(s[2].shape[1] for s in seps)
     C = len(channels)
     bounds = interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta)

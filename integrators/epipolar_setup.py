@@ -335,13 +335,52 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
     frame = queries.frame
     s, gamma = rays.positions(0.5)
     base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
-    h, hits = _axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
+    h, hits = axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
     rays.h = dr.select(hits, h, dr.inf)
-    rays.h_ref = dr.full(mi.Float, dr.inf, queries.n)
-    dr.scatter_reduce(dr.ReduceOp.Min, rays.h_ref, rays.h, s)
-    rays.h_ref = dr.select(dr.isfinite(rays.h_ref), rays.h_ref, 0.0)
+    rays.h_ref = row_reference(params, rays.h, s, queries.n)
     dr.eval(rays.gamma_max, rays.delta_gamma, rays.h, rays.h_ref)
     return rays
+
+
+#: light-side range c: a light ray leaving the box toward the light at
+#: σt·h < −c (more than c mean free paths *behind* the eye, along the
+#: light) is dropped, and no row's reference h_ref lies below −c/σt
+LIGHT_SIDE_RANGE = 7.0
+
+
+def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
+    """h_ref per row: the smallest finite ``h`` of its light rays (``s``:
+    their rows), but not below −c/σt_max (c = ``LIGHT_SIDE_RANGE``).
+
+    The sum is split as e^{-σt h_ref} (per query) times L(γ) K(γ, β) (in
+    the tree), and float32 and the separated kernel resolve that sum only
+    to a fixed fraction of its largest terms.  Where a row's light rays
+    leave the box behind the eye (h < 0: a grazing light under the box's
+    top, a wall beside the camera), e^{-σt h} grows without bound while the
+    kernel those light rays meet, at β > π/2, shrinks as fast: every point
+    of such a light ray is at t ≥ |u| ≥ |h| from the eye, so it contributes
+    at most e^{-σt |h|} of the unattenuated single scattering.  Bounding
+    the reference bounds the amplification to e^{c}; the light rays beyond
+    it, worth at most e^{-c} ≈ 1e-3 of full scale, are dropped by
+    :func:`light_side_factor`, and the automatic SVD rank tightens its
+    tolerance by the row's e^{σt h_ref} (:func:`light_side_gain`)."""
+    h_ref = dr.full(mi.Float, dr.inf, n)
+    dr.scatter_reduce(dr.ReduceOp.Min, h_ref, h, s)
+    h_ref = dr.select(dr.isfinite(h_ref), h_ref, 0.0)
+    sigma_t_max = float(np.max(params.medium.sigma_t))
+    if sigma_t_max > 0.0:
+        h_ref = dr.maximum(h_ref, -LIGHT_SIDE_RANGE / sigma_t_max)
+    return h_ref
+
+
+def light_side_gain(sigma_t: float, lowest: float) -> float:
+    """e^{-σt·min(lowest, 0)}, at most e^{c}: how much a light-side factor
+    whose smallest path length is ``lowest`` (a directional light's
+    smallest h_ref, :func:`row_reference`; a point light's smallest
+    L − r_in) amplifies the tree's absolute errors in a channel of
+    extinction ``sigma_t``: the automatic SVD rank divides its tolerance
+    by it."""
+    return math.exp(min(LIGHT_SIDE_RANGE, -sigma_t * min(lowest, 0.0)))
 
 
 def rectified_depth(queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
@@ -634,7 +673,7 @@ def gray(sigma_t) -> bool:
     return bool(np.all(s == s[0]))
 
 
-def _axial_exit(params, x, w):
+def axial_exit(params, x, w):
     """(h, hits): axial coordinate where the line x + u·w leaves the medium
     box toward the light, and whether the line meets the box at all."""
     t_near, t_far = _slabs(x, w, point(params.medium.bounds_min), point(params.medium.bounds_max))
@@ -642,10 +681,12 @@ def _axial_exit(params, x, w):
 
 
 def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
-    """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} ∈ [0, 1] at every light ray's
-    centre: (n, d) if σt is grey, else (n, d, 3).  Relative to the row's
-    h_ref so that thick media stay inside float32's range; the factor
-    e^{-σt h_ref} is applied per query (:func:`directional_query_terms`)."""
+    """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} at every light ray's centre:
+    (n, d) if σt is grey, else (n, d, 3).  Relative to the row's h_ref so
+    that thick media stay inside float32's range; the factor e^{-σt h_ref}
+    is applied per query (:func:`directional_query_terms`).  Light rays
+    with σt·h < −c contribute at most e^{-c} of full scale and are 0
+    (:func:`row_reference`); so e^{-σt h_ref}·L ≤ e^{c} everywhere."""
     s, _, _ = rays.lanes()
     dh = rays.h - dr.gather(mi.Float, rays.h_ref, s)
     sigma_t = params.medium.sigma_t
@@ -653,8 +694,9 @@ def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.T
     out = dr.zeros(mi.Float, dr.width(dh) * len(channels))
     lane = dr.arange(mi.UInt32, dr.width(dh))
     for c in channels:
-        e = -float(sigma_t[c]) * dh
-        dr.scatter(out, dr.select(dr.isfinite(dh), dr.exp(e), 0.0), lane * len(channels) + c)
+        st = float(sigma_t[c])
+        kept = dr.isfinite(dh) & (st * rays.h >= -LIGHT_SIDE_RANGE)
+        dr.scatter(out, dr.select(kept, dr.exp(-st * dh), 0.0), lane * len(channels) + c)
     shape = (queries.n, rays.d) if len(channels) == 1 else (queries.n, rays.d, 3)
     return mi.TensorXf(out, shape=shape)
 
@@ -943,7 +985,7 @@ def directional_query_terms(params, cap: CameraCapture, queries: EpipolarQueries
     radiance = color(params.medium.sigma_s) * f_p * E * dr.exp(sigma_t * (queries.t_near - h_ref))
     dg = dr.gather(mi.Float, rays.delta_gamma, queries.row)
     view = dg / dr.sin(queries.beta) * cell_average(sigma_t * dr.tan(0.5 * queries.beta) * dg)
-    h0, _ = _axial_exit(params, mi.Point3f(point(params.camera.origin)),
+    h0, _ = axial_exit(params, mi.Point3f(point(params.camera.origin)),
                         mi.Vector3f(*map(float, queries.frame.axis)))
     one_minus_cos = 1.0 - dr.dot(omega, wo)
     near = V_near * dr.exp(-sigma_t * (h0 - h_ref)) * segment_weight(sigma_t * one_minus_cos,
@@ -961,10 +1003,10 @@ def assemble_queries(terms: QueryTerms, integral: mi.Color3f) -> mi.Color3f:
         scale = terms.view * (terms.magnitude + dr.abs(terms.last)) + dr.abs(terms.near)
         bracket = dr.select(dr.abs(bracket) <= SWEEP_RESIDUE_EPS * scale, 0.0, bracket)
     value = terms.radiance * bracket
-    # Beyond float32's range (σt·|h_ref| > 88: optical depths of hundreds)
-    # the factor e^{-σt h_ref} overflows while the kernel it multiplies has
-    # underflowed to 0; the product of those queries is lost (returned as 0,
-    # not NaN).  results/stability measures the error this leaves.
+    # e^{-σt h_ref} ≤ e^{c} (row_reference), but e^{σt t_near} overflows
+    # when the near clip plane lies more than 88 mean free paths from the
+    # eye; the sum it multiplies has underflowed to 0 by then, and the
+    # query is returned as 0, not NaN (results/stability, scale 1e4).
     return dr.select(dr.isfinite(terms.radiance), dr.maximum(value, 0.0), 0.0)
 
 

@@ -22,7 +22,8 @@ from .epipolar_local_light import (CHECK_POINTS, MAX_RANK,  # shared with the lo
 from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_terms,
                              first_leaf_visibility, gather_queries,
                              gray, last_interval_correction, last_interval_visibility,
-                             light_ray_grid, light_side_factor, rectified_depth,
+                             light_ray_grid, light_side_factor, light_side_gain,
+                             rectified_depth,
                              shadow_map_blocker_angles, sweep_magnitude,
                              trace_sub_ray_blockers)
 from .integrand_svd import SAMPLES, separate_integrand
@@ -329,7 +330,11 @@ def separated_kernel(params, queries, rays, rank: int, tol: float):
     gamma_max = float(dr.max(rays.gamma_max)[0])
     beta_lo, beta_hi = float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
     x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
-    seps = [separate_channel(float(sigma_t[c]), gamma_max, beta_lo, beta_hi, rank, tol)
+    # the per-query factor e^{-σt h_ref} multiplies the kernel's errors:
+    # the automatic rank meets the tolerance after it (row_reference)
+    lowest = float(dr.min(rays.h_ref)[0])
+    seps = [separate_channel(float(sigma_t[c]), gamma_max, beta_lo, beta_hi, rank,
+                             tol / light_side_gain(float(sigma_t[c]), lowest))
             for c in channels]
     N = max(s[2].shape[1] for s in seps)
     C = len(channels)

@@ -80,8 +80,8 @@ import numpy as np
 from rectify.coords import light_coords_to_world
 from rectify.projective import ProjectiveColumns, ProjectiveRows
 
-from .epipolar_setup import (LightRays, _axial_exit, cell_average, directional_query_terms,
-                             rectified_depth)
+from .epipolar_setup import (LightRays, axial_exit, cell_average, directional_query_terms,
+                             rectified_depth, row_reference)
 from .fourier_basis import FilteredBasis, filtered_visibility, prefix_filter
 from .light_transport import color, segment_weight
 
@@ -418,11 +418,9 @@ def projective_light_rays(params, queries, rows: ProjectiveRows,
     frame = queries.frame
     s, gamma = rays.positions(0.5)
     base = light_coords_to_world(frame, dr.gather(mi.Float, queries.alpha, s), gamma, 0.0)
-    h, hits = _axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
+    h, hits = axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
     rays.h = dr.select(hits, h, dr.inf)
-    rays.h_ref = dr.full(mi.Float, dr.inf, queries.n)
-    dr.scatter_reduce(dr.ReduceOp.Min, rays.h_ref, rays.h, s)
-    rays.h_ref = dr.select(dr.isfinite(rays.h_ref), rays.h_ref, 0.0)
+    rays.h_ref = row_reference(params, rays.h, s, queries.n)
     dr.eval(rays.h, rays.h_ref)
     return rays
 
@@ -498,7 +496,7 @@ GAUSS_WEIGHTS = (0.5, 0.5)
 class _GaussNodes:
     """The Gauss nodes of every texel as equally-indexed 'light rays'
     (``2d`` per row) for :func:`~integrators.epipolar_tree.separated_kernel`,
-    which reads ``d``, ``gamma_max`` and ``positions(0.0)``."""
+    which reads ``d``, ``gamma_max``, ``h_ref`` and ``positions(0.0)``."""
     rays: ProjectiveLightRays
 
     @property
@@ -508,6 +506,10 @@ class _GaussNodes:
     @property
     def gamma_max(self):
         return self.rays.gamma_max
+
+    @property
+    def h_ref(self):
+        return self.rays.h_ref
 
     def positions(self, offset: float = 0.0):
         s, lo = self.rays.positions(0.0)

@@ -530,3 +530,28 @@ def test_last_interval_correction_against_numpy(coloured):
     leaf = A4[0][None] * L[:, :, None, None]                         # (n, d, C, N)
     want = np.einsum("sbg,sgcn,bn->sbc", V * cover, leaf, B[0]).reshape(n * r, -1)
     np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=1e-4, atol=1e-5)
+
+
+def test_light_side_factor_times_reference_is_bounded():
+    """e^{-σt h_ref} · L(γ) ≤ e^{c} for every light ray, and a light ray is
+    dropped exactly when σt·h < −c (row_reference, light_side_factor)."""
+    from experiments import stability as st
+
+    sigma_t = 10.0
+    scene = mi.load_dict(st.stress_scene(st.grazing_cases([sigma_t])[0]["light"],
+                                         sigma_t=sigma_t, res=(32, 24), camera=st.UNDER_TOP))
+    params = SceneParams.from_scene(scene)
+    frame = es.epipolar_frame_of(params)
+    queries = es.assign_queries(params, frame, es.choose_slices(frame),
+                                capture_camera(params, surface=False), 2.0)
+    rays = es.light_ray_grid(params, queries)
+    L = np.array(es.light_side_factor(params, queries, rays)).reshape(queries.n, rays.d)
+    h = np.array(rays.h).reshape(queries.n, rays.d)
+    h_ref = np.array(rays.h_ref)
+    c = es.LIGHT_SIDE_RANGE
+    assert np.min(h[np.isfinite(h)]) * sigma_t < -c          # the case needs the bound
+    assert np.all(h_ref >= -c / sigma_t - 1e-5)
+    amplified = np.exp(-sigma_t * h_ref)[:, None] * L
+    assert np.all(amplified <= np.exp(c) * (1 + 1e-4))
+    dropped = np.isfinite(h) & (sigma_t * h < -c)
+    assert np.all(L[dropped] == 0) and np.all(L[np.isfinite(h) & ~dropped] > 0)
