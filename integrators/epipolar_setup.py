@@ -128,12 +128,13 @@ def epipolar_frame_of(params) -> EpipolarFrame:
     return point_frame(params.camera, light.position, kind=light.kind)
 
 
-def choose_slices(frame: EpipolarFrame, count: int = 0) -> Slices:
-    """``count = 0``: Baran's sinh distribution (§8, half-pixel bound);
+def choose_slices(frame: EpipolarFrame, count: int = 0, spacing: float = 1.0) -> Slices:
+    """``count = 0``: Baran's sinh distribution (§8), lines at most
+    ``spacing`` px apart (1: every pixel within half a pixel of a slice);
     otherwise about ``count`` slices with end points equally spaced along the
     image edges the slices leave through."""
     if count <= 0:
-        return make_slices(frame, "sinh")
+        return make_slices(frame, "sinh", spacing=spacing)
     border = make_slices(frame, "uniform", spacing=1.0).count   # ≈ exit-edge length [px]
     return make_slices(frame, "uniform", spacing=max(border, 1) / count)
 
@@ -183,6 +184,7 @@ class EpipolarQueries:
     t_near: mi.Float           # (Q,) pinhole -> camera ray origin
     ring_sample: mi.UInt32     # (R,) camera samples inside the ring
     n_samples: int
+    weight: mi.Float | None = None   # (Q,) share of its sample (slice interpolation); None: 1
 
     @property
     def count(self) -> int:
@@ -203,6 +205,27 @@ class EpipolarQueries:
 def _nearest_slice(slices: Slices, alpha) -> mi.UInt32:
     k0, k1, f = alpha_to_slice(slices, alpha)
     return dr.select(f < 0.5, k0, k1)
+
+
+#: slice interpolation: a sample within this fraction of the spacing of a
+#: slice is a query of that slice alone
+SNAP = 1e-3
+
+
+def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
+    """(sample, slice, weight) of the queries of samples ``idx`` when each
+    is shared between its two neighbouring slices, weights 1 − f and f
+    (:func:`~rectify.slices.alpha_to_slice`; one query of weight 1 within
+    ``SNAP`` of a slice)."""
+    k0, k1, f = alpha_to_slice(slices, dr.gather(mi.Float, alpha, idx))
+    f = dr.select(f < SNAP, 0.0, dr.select(f > 1.0 - SNAP, 1.0, f))
+    first = f < 1.0                      # k0 takes a share
+    second = f > 0.0                     # k1 takes a share
+    i0, i1 = dr.compress(first), dr.compress(second)
+    sample = dr.concat([dr.gather(mi.UInt32, idx, i0), dr.gather(mi.UInt32, idx, i1)])
+    k = dr.concat([dr.gather(mi.UInt32, k0, i0), dr.gather(mi.UInt32, k1, i1)])
+    weight = dr.concat([1.0 - dr.gather(mi.Float, f, i0), dr.gather(mi.Float, f, i1)])
+    return sample, k, weight
 
 
 #: fewest bits of β in the one-key sort of :func:`_sweep_order`
@@ -256,10 +279,12 @@ def end_gamma(frame: EpipolarFrame, beta, t_end) -> mi.Float:
 
 
 def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapture,
-                   ring_deg: float) -> EpipolarQueries:
+                   ring_deg: float, interpolate: bool = False) -> EpipolarQueries:
     """Sort the camera samples of ``cap`` into the sweeps of their nearest
-    slices (module doc); ring samples are listed apart, samples with
-    ``d = 0`` are dropped (they scatter nothing).  ``γ_end``:
+    slices (module doc), or with ``interpolate`` into both neighbouring
+    slices, weighted by the sample's position between them
+    (:func:`_slice_shares`; ``weight``); ring samples are listed apart,
+    samples with ``d = 0`` are dropped (they scatter nothing).  ``γ_end``:
     :func:`end_gamma` of the light kind of ``frame``."""
     n_samples = dr.width(cap.d)
     alpha, beta = direction_to_alpha_beta(frame, cap.omega)
@@ -268,11 +293,17 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     idx = dr.compress((cap.d > 0) & ~ring)
     if dr.width(idx) == 0:
         return _no_queries(frame, slices, ring_sample, n_samples)
-    k = dr.gather(mi.UInt32, _nearest_slice(slices, alpha), idx)
+    weight = None
+    if interpolate:
+        idx, k, weight = _slice_shares(slices, alpha, idx)
+    else:
+        k = dr.gather(mi.UInt32, _nearest_slice(slices, alpha), idx)
     b = dr.gather(mi.Float, beta, idx)
     order = _sweep_order(k, b, slices.count)
     sample = dr.gather(mi.UInt32, idx, order)
     k, b = dr.gather(mi.UInt32, k, order), dr.gather(mi.Float, b, order)
+    if weight is not None:
+        weight = dr.gather(mi.Float, weight, order)
     slice_index, r_count, row, col = _rows(slices, k)
     pinhole = mi.Point3f(point(params.camera.origin))
     t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
@@ -280,9 +311,9 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     alpha_rows = dr.gather(mi.Float, mi.Float(np.asarray(slices.alpha, np.float32)), slice_index)
     q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(r_count)[0]),
                         slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
-                        t_near, ring_sample, n_samples)
+                        t_near, ring_sample, n_samples, weight)
     dr.eval(q.slice_index, q.alpha, q.r_count, q.sample, q.row, q.col, q.beta,
-            q.gamma_end, q.t_near, q.ring_sample)
+            q.gamma_end, q.t_near, q.ring_sample, *([] if weight is None else [weight]))
     return q
 
 
@@ -1039,10 +1070,11 @@ def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int)
 
 
 def to_samples(queries: EpipolarQueries, parts) -> mi.Color3f:
-    """Per camera sample: the ``(sample indices, values)`` pairs scattered
-    into zeros (samples in no part scatter nothing)."""
+    """Per camera sample: the ``(sample indices, values)`` pairs added
+    into zeros (samples in no part scatter nothing; a sample shared by two
+    slices sums its weighted queries)."""
     out = dr.zeros(mi.Color3f, queries.n_samples)
     for idx, values in parts:
         if dr.width(idx):
-            dr.scatter(out, values, idx)
+            dr.scatter_reduce(dr.ReduceOp.Add, out, values, idx)
     return out

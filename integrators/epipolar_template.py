@@ -3,7 +3,8 @@
 :class:`EpipolarIntegrator` reads the properties common to ``epipolar_tree``
 and ``fourier_filter`` (slices, light rays, SVD rank, epipole ring, shadow
 map resolution) and implements :meth:`scattering`: rectify (every camera
-sample becomes a query of its nearest slice, Baran §3/§8), let the method
+sample becomes a query of its nearest slice, Baran §3/§8, or of both
+neighbouring slices, weighted by its position between them), let the method
 answer the queries (:meth:`integrate_queries`), march the epipole ring by
 brute force (Baran §6), and scatter both back to the camera samples.
 """
@@ -14,12 +15,16 @@ import drjit as dr
 from .epipolar_setup import (assign_queries, choose_slices, epipolar_frame_of, march_ring,
                              to_samples)
 from .integrand_svd import SAMPLES
-from .template import EpiscatterIntegrator, read_number
+from .template import EpiscatterIntegrator, read_bool, read_number
 
 
 class EpipolarIntegrator(EpiscatterIntegrator):
     """Base of the epipolar methods; subclasses implement
     :meth:`integrate_queries` (and may refuse lights in :meth:`check_light`)."""
+
+    #: default of ``slice_interpolation`` (each camera sample shared by its
+    #: two neighbouring slices instead of answered by the nearest one)
+    SLICE_INTERPOLATION = False
 
     def read_properties(self, props):
         self.slices = read_number(props, "slices", 0, minimum=0, maximum=1 << 20, integer=True)
@@ -33,6 +38,10 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         self.ring_steps = read_number(props, "ring_steps", 256, minimum=1, integer=True)
         self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
                                                 minimum=1, maximum=32768, integer=True)
+        self.slice_interpolation = read_bool(props, "slice_interpolation",
+                                             self.SLICE_INTERPOLATION)
+        self.slice_spacing = read_number(props, "slice_spacing", 1.0, minimum=0.05,
+                                         maximum=1e4)
         self.read_method_properties(props)
 
     def read_method_properties(self, props) -> None:
@@ -50,16 +59,20 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         """(frame, slices, plan): the rows the camera samples are sorted into
         (hook): Baran's epipolar slices (§3, §8), no plan."""
         frame = epipolar_frame_of(params)
-        return frame, choose_slices(frame, self.slices), None
+        return frame, choose_slices(frame, self.slices, self.slice_spacing), None
 
     def scattering(self, params, cap):
         self.check_light(params)
         with self.stage("rectify"):
             frame, slices, plan = self.choose_rows(params, cap)
-            queries = assign_queries(params, frame, slices, cap, self.ring_degrees)
+            queries = assign_queries(params, frame, slices, cap, self.ring_degrees,
+                                     interpolate=self.slice_interpolation)
         parts = []
         if queries.n:
-            parts.append((queries.sample, self.integrate_queries(params, cap, queries, plan)))
+            values = self.integrate_queries(params, cap, queries, plan)
+            if queries.weight is not None:
+                values = values * queries.weight
+            parts.append((queries.sample, values))
         with self.stage("ring") as keep:
             if dr.width(queries.ring_sample):
                 parts.append((queries.ring_sample,

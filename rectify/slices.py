@@ -101,22 +101,24 @@ def _uniform_edge_points(P0, P1, spacing):
     return P0 + s[:, None] * (P1 - P0)
 
 
-def _sinh_edge_points(frame: EpipolarFrame, P0, P1, n, h):
-    """Baran Eq. 5 on one edge: x(a) = h sinh(a), a in steps of 1/h."""
+def _sinh_edge_points(frame: EpipolarFrame, P0, P1, n, h, spacing: float = 1.0):
+    """Baran Eq. 5 on one edge: x(a) = h sinh(a), a in steps of
+    ``spacing``/h (Baran: 1/h, lines at most 1 px apart)."""
     length = float(np.linalg.norm(P1 - P0))
     e = (P1 - P0) / length
     if math.isinf(h):
-        # parallel lines: 1 px apart perpendicular to them
+        # parallel lines: ``spacing`` px apart perpendicular to them
         cosang = abs(float(n @ frame.direction))
-        return _uniform_edge_points(P0, P1, 1.0 / cosang)
+        return _uniform_edge_points(P0, P1, spacing / cosang)
     if h <= 0.5:
         return np.stack([P0, P1])
     F = frame.epipole + h * n                        # foot of the perpendicular
     x0, x1 = float((P0 - F) @ e), float((P1 - F) @ e)
     a0, a1 = math.asinh(x0 / h), math.asinh(x1 / h)
-    k = np.arange(math.floor(a0 * h) + 1, math.ceil(a1 * h))
-    k = k[(k / h > a0) & (k / h < a1)]
-    x = h * np.sinh(k / h)
+    step = spacing / h
+    k = np.arange(math.floor(a0 / step) + 1, math.ceil(a1 / step))
+    k = k[(k * step > a0) & (k * step < a1)]
+    x = h * np.sinh(k * step)
     return np.concatenate([P0[None], F + x[:, None] * e, P1[None]])
 
 
@@ -159,15 +161,18 @@ def uniform_slices(frame: EpipolarFrame, spacing: float = 1.0) -> Slices:
     return slices_from_points(frame, np.concatenate(pts), method="uniform")
 
 
-def sinh_slices(frame: EpipolarFrame) -> Slices:
-    """Baran §8 (Eq. 5) slice distribution with the half-pixel bound."""
-    pts = [_sinh_edge_points(frame, P0, P1, n, h) for P0, P1, n, h in _exit_edges(frame)]
+def sinh_slices(frame: EpipolarFrame, spacing: float = 1.0) -> Slices:
+    """Baran §8 (Eq. 5) slice distribution: lines at most ``spacing`` px
+    apart (1: Baran's half-pixel bound)."""
+    if not spacing > 0:
+        raise ValueError(f"spacing must be > 0, got {spacing}")
+    pts = [_sinh_edge_points(frame, P0, P1, n, h, spacing) for P0, P1, n, h in _exit_edges(frame)]
     return slices_from_points(frame, np.concatenate(pts), method="sinh")
 
 
 def make_slices(frame: EpipolarFrame, method: str = "sinh", **kw) -> Slices:
     if method == "sinh":
-        return sinh_slices(frame)
+        return sinh_slices(frame, **kw)
     if method == "uniform":
         return uniform_slices(frame, **kw)
     raise ValueError(f"unknown slice distribution {method!r}: use 'sinh' or 'uniform'")

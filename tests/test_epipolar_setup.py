@@ -555,3 +555,37 @@ def test_light_side_factor_times_reference_is_bounded():
     assert np.all(amplified <= np.exp(c) * (1 + 1e-4))
     dropped = np.isfinite(h) & (sigma_t * h < -c)
     assert np.all(L[dropped] == 0) and np.all(L[np.isfinite(h) & ~dropped] > 0)
+
+
+@pytest.mark.parametrize("light", [None, "on_screen"])
+def test_slice_interpolation_shares_each_sample_between_its_neighbours(light):
+    """interpolate=True: every non-ring sample's queries have weights summing
+    to 1, lie in the two slices around its α (one query within SNAP of a
+    slice) and reproduce α by their weighted mean (the lerp); each row is
+    still sorted by β."""
+    scene = mi.load_dict(scene_dict(res=RES, **({"light": on_screen_light()} if light else {})))
+    params = SceneParams.from_scene(scene)
+    cap = capture_camera(params, surface=False)
+    frame = es.epipolar_frame_of(params)
+    sl = es.choose_slices(frame)
+    q = es.assign_queries(params, frame, sl, cap, 3.0, interpolate=True)
+    nearest = es.assign_queries(params, frame, sl, cap, 3.0)
+    alpha_s, _ = direction_to_alpha_beta_reference(frame, np.array(cap.omega).T)
+    sample, w = np.array(q.sample), np.array(q.weight)
+    a_q = np.array(q.alpha)[np.array(q.row)]
+    assert set(sample) == set(np.array(nearest.sample))
+    total = np.bincount(sample, w, len(alpha_s))
+    np.testing.assert_allclose(total[np.array(nearest.sample)], 1.0, atol=1e-6)
+    # weighted mean of the slices' α (unwrapped around the sample's own α)
+    d = np.angle(np.exp(1j * (a_q - alpha_s[sample])))
+    mean_offset = np.bincount(sample, w * d, len(alpha_s))[np.array(nearest.sample)]
+    spacing = np.max(np.abs(np.diff(np.asarray(sl.alpha))))
+    assert np.max(np.abs(mean_offset)) < 1e-3 * spacing + 1e-6
+    assert np.max(np.abs(d)) <= spacing * (1 + 1e-4)
+    counts = np.bincount(sample, minlength=len(alpha_s))
+    assert counts.max() == 2 and 0.5 < np.mean(counts[counts > 0] == 2)
+    rows, beta = np.array(q.row), np.array(q.beta)
+    order = np.lexsort((np.array(q.col), rows))
+    assert np.all(np.diff(rows[order]) >= 0)
+    same = np.diff(rows[order]) == 0
+    assert np.all(np.diff(beta[order])[same] >= -1e-5)

@@ -370,4 +370,19 @@ def test_no_light_in_front_of_a_surface_in_shadow(light):
     # what the reference renders black is black
     assert np.mean(img[black] == 0) > 0.99, np.mean(img[black] == 0)
     # only the queries whose last interval is uncertain trace a shadow ray
-    assert 0 < integ.last_interval_traced < 0.75 * black.size
+    assert 0 < integ.last_interval_traced < 0.75 * integ.query_count
+
+
+@pytest.mark.parametrize("light", [None, point_light([0.3, 2.0, 0.4])])
+def test_slice_interpolation_beats_the_nearest_slice(light):
+    """At few slices the nearest slice's blockers and light-side factor are
+    up to half a spacing off; sharing each sample between its two
+    neighbouring slices (the default) lowers the error at the same slices."""
+    scene = mi.load_dict(scene_dict(res=RES, **({"light": light} if light else {})))
+    ref = reference(scene)
+    errors = {}
+    for interpolate in (False, True):
+        img, _ = render(scene, "epipolar_tree", slices=24, light_rays=256,
+                        slice_interpolation=interpolate)
+        errors[interpolate] = normalised_relmse(img, ref)
+    assert errors[True] < 0.7 * errors[False], errors
