@@ -10,8 +10,10 @@ for similar quality"), with the visual match replaced by a measured one:
    at the pixel centres, :func:`experiments.common.exact_reference`) this
    gives its time/error curve;
 2. ``epipolar_tree`` runs at its defaults (``traced``: light rays traced by
-   Mitsuba), with half the automatic light rays (a faster, coarser point
-   of its own time/error curve), and with ``rectification=resampled`` from
+   Mitsuba; each sample shared by its two neighbouring slices), with half
+   the automatic light rays and with slice lines up to 2 px apart (faster,
+   coarser points of its own time/error curve), with each sample in its
+   nearest slice only (the paper's way), and with ``rectification=resampled`` from
    a shadow map of the *same* resolution as the ray marcher's (the paper's
    setting: "both algorithms use a 4096x4096 shadow map");
 3. the ray marcher's time at the tree's relMSE is interpolated log-log
@@ -88,6 +90,9 @@ def settings_of_run(s: dict) -> dict:
     out = {"tree traced": ("epipolar_tree", {}),
            "tree traced, half light rays": ("epipolar_tree",
                                             {"light_rays": s["half_light_rays"]}),
+           "tree traced, slices 2 px apart": ("epipolar_tree", {"slice_spacing": 2.0}),
+           "tree traced, nearest slice (paper)": ("epipolar_tree",
+                                                  {"slice_interpolation": False}),
            "tree resampled": ("epipolar_tree", {"rectification": "resampled",
                                                 "shadowmap_resolution": sm})}
     for n in s["steps"]:

@@ -185,6 +185,7 @@ class EpipolarQueries:
     ring_sample: mi.UInt32     # (R,) camera samples inside the ring
     n_samples: int
     weight: mi.Float | None = None   # (Q,) share of its sample (slice interpolation); None: 1
+    shares: float = 1.0        # queries per (non-ring) sample: 1, up to 2 with interpolation
 
     @property
     def count(self) -> int:
@@ -215,9 +216,17 @@ SNAP = 1e-3
 def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     """(sample, slice, weight) of the queries of samples ``idx`` when each
     is shared between its two neighbouring slices, weights 1 − f and f
-    (:func:`~rectify.slices.alpha_to_slice`; one query of weight 1 within
-    ``SNAP`` of a slice)."""
+    (:func:`~rectify.slices.alpha_to_slice`).  Only slices that are some
+    sample's nearest take shares: where the sinh placement (§8) puts
+    slices closer than the pixels (toward the epipole) the others would
+    add rows of their own for little, and the nearest slice is there well
+    within half a pixel.  So a sample one of whose neighbours is nobody's
+    nearest, or within ``SNAP`` of a slice, is one query of weight 1."""
     k0, k1, f = alpha_to_slice(slices, dr.gather(mi.Float, alpha, idx))
+    used = dr.zeros(mi.Bool, slices.count)
+    dr.scatter(used, True, dr.select(f < 0.5, k0, k1))
+    both = dr.gather(mi.Bool, used, k0) & dr.gather(mi.Bool, used, k1)
+    f = dr.select(both, f, dr.select(f < 0.5, 0.0, 1.0))
     f = dr.select(f < SNAP, 0.0, dr.select(f > 1.0 - SNAP, 1.0, f))
     first = f < 1.0                      # k0 takes a share
     second = f > 0.0                     # k1 takes a share
@@ -293,7 +302,7 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     idx = dr.compress((cap.d > 0) & ~ring)
     if dr.width(idx) == 0:
         return _no_queries(frame, slices, ring_sample, n_samples)
-    weight = None
+    weight, n_idx = None, dr.width(idx)
     if interpolate:
         idx, k, weight = _slice_shares(slices, alpha, idx)
     else:
@@ -311,7 +320,7 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     alpha_rows = dr.gather(mi.Float, mi.Float(np.asarray(slices.alpha, np.float32)), slice_index)
     q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(r_count)[0]),
                         slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
-                        t_near, ring_sample, n_samples, weight)
+                        t_near, ring_sample, n_samples, weight, dr.width(idx) / n_idx)
     dr.eval(q.slice_index, q.alpha, q.r_count, q.sample, q.row, q.col, q.beta,
             q.gamma_end, q.t_near, q.ring_sample, *([] if weight is None else [weight]))
     return q
@@ -456,8 +465,9 @@ def _light_top(params, frame: EpipolarFrame) -> float:
     return float(np.max(u)) + 1e-2 * params.scene_extent
 
 
-#: |second difference| of the blocker indices (in queries) at neighbouring
-#: light-ray boundaries above which an interval traces its §7 sub-rays
+#: |second difference| of the blocker indices (in samples: queries / shares)
+#: at neighbouring light-ray boundaries above which an interval traces its
+#: §7 sub-rays
 EDGE_INDEX_JUMP = 1
 #: intervals on either side of a non-smooth boundary that trace their sub-rays too
 DILATE = 2
@@ -510,8 +520,11 @@ def _smooth_intervals(queries: EpipolarQueries, rays: LightRays, s_b, gamma_b, h
     def at(values, tp, s, g, offset):
         return dr.gather(tp, values, s * nb + mi.UInt32(dr.clip(g + offset, 0, rays.d)))
 
-    calm = ((dr.abs(at(e, mi.Int32, s_b, g_b, -1) - 2 * e + at(e, mi.Int32, s_b, g_b, 1))
-             <= EDGE_INDEX_JUMP)
+    # in samples, not queries: a sample shared by two slices (interpolation)
+    # makes up to two queries of a row
+    jump = EDGE_INDEX_JUMP * math.ceil(queries.shares - 1e-6)
+    calm = ((mi.Float(dr.abs(at(e, mi.Int32, s_b, g_b, -1) - 2 * e + at(e, mi.Int32, s_b, g_b, 1)))
+             <= jump)
             & ~(hit ^ at(hit, mi.Bool, s_b, g_b, -1)) & ~(hit ^ at(hit, mi.Bool, s_b, g_b, 1)))
     s, g, _ = rays.lanes()
     smooth = mi.Bool(True)

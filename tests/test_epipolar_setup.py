@@ -560,9 +560,10 @@ def test_light_side_factor_times_reference_is_bounded():
 @pytest.mark.parametrize("light", [None, "on_screen"])
 def test_slice_interpolation_shares_each_sample_between_its_neighbours(light):
     """interpolate=True: every non-ring sample's queries have weights summing
-    to 1, lie in the two slices around its α (one query within SNAP of a
-    slice) and reproduce α by their weighted mean (the lerp); each row is
-    still sorted by β."""
+    to 1; a sample with two queries has them in the two slices around its α
+    and reproduces α by their weighted mean (the lerp); one with a single
+    query (a neighbour nobody's nearest, or within SNAP of a slice) has it
+    in its nearest slice; each row is still sorted by β."""
     scene = mi.load_dict(scene_dict(res=RES, **({"light": on_screen_light()} if light else {})))
     params = SceneParams.from_scene(scene)
     cap = capture_camera(params, surface=False)
@@ -578,12 +579,16 @@ def test_slice_interpolation_shares_each_sample_between_its_neighbours(light):
     np.testing.assert_allclose(total[np.array(nearest.sample)], 1.0, atol=1e-6)
     # weighted mean of the slices' α (unwrapped around the sample's own α)
     d = np.angle(np.exp(1j * (a_q - alpha_s[sample])))
-    mean_offset = np.bincount(sample, w * d, len(alpha_s))[np.array(nearest.sample)]
+    counts = np.bincount(sample, minlength=len(alpha_s))
+    assert counts.max() == 2 and 0.5 < np.mean(counts[counts > 0] == 2)
+    pairs = np.flatnonzero(counts == 2)
+    mean_offset = np.bincount(sample, w * d, len(alpha_s))[pairs]
     spacing = np.max(np.abs(np.diff(np.asarray(sl.alpha))))
     assert np.max(np.abs(mean_offset)) < 1e-3 * spacing + 1e-6
     assert np.max(np.abs(d)) <= spacing * (1 + 1e-4)
-    counts = np.bincount(sample, minlength=len(alpha_s))
-    assert counts.max() == 2 and 0.5 < np.mean(counts[counts > 0] == 2)
+    near_alpha = dict(zip(np.array(nearest.sample), np.array(nearest.alpha)[np.array(nearest.row)]))
+    single = counts[sample] == 1
+    np.testing.assert_array_equal(a_q[single], [near_alpha[i] for i in sample[single]])
     rows, beta = np.array(q.row), np.array(q.beta)
     order = np.lexsort((np.array(q.col), rows))
     assert np.all(np.diff(rows[order]) >= 0)
