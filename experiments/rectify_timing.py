@@ -347,8 +347,10 @@ def observations(rows, fits) -> str:
             f"per light ray for the box exits) and takes {1000 * min(times):.0f}-"
             f"{1000 * max(times):.0f} ms; the O(s·d) part -- the blocker angles of k = 4 "
             "sub-rays per light ray and their depth modes -- dominates once d is in the "
-            "thousands.  `traced` pays a Mitsuba ray per sub-ray, `resampled` a texel "
-            "lookup after building the map (which alone costs seconds at 2048²).")
+            "thousands.  `traced` pays a Mitsuba ray per sub-ray (at most: the adaptive "
+            "sub-rays trace the interval boundaries and interpolate where they are "
+            "smooth), `resampled` a texel lookup after building the map (its own row "
+            "above).")
     for f in tot:
         if f["r2"] >= 0.99:
             continue

@@ -183,6 +183,13 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                (default): automatic (sinh distribution;
                                projective: equal steps), every pixel
                                within half a pixel of a slice (row)
+    ``slice_spacing``          automatic epipolar slices at most this many
+                               pixels apart (default 1)
+    ``slice_interpolation``    each camera sample a query of both
+                               neighbouring slices, weighted by its
+                               position between them (default false: the
+                               nearest slice; the filter's own error
+                               dominates, :mod:`integrators.epipolar_template`)
     ``light_rays``             texels (light rays) per row; 0 (default):
                                4× ``epipolar_tree``'s automatic count, at
                                most 1024 (:func:`auto_texels`); point/spot:
