@@ -416,10 +416,10 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
 def light_side_gain(sigma_t: float, lowest: float) -> float:
     """e^{-σt·min(lowest, 0)}, at most e^{c}: how much a light-side factor
     whose smallest path length is ``lowest`` (a directional light's
-    smallest h_ref, :func:`row_reference`; a point light's smallest
-    L − r_in) amplifies the tree's absolute errors in a channel of
-    extinction ``sigma_t``: the automatic SVD rank divides its tolerance
-    by it."""
+    smallest h, :func:`row_reference`; a point light's smallest L − r_in)
+    amplifies the tree's absolute errors in a channel of extinction
+    ``sigma_t`` (e^{-σt h_ref}·L of its kept light rays reaches this):
+    the automatic SVD rank divides its tolerance by it."""
     return math.exp(min(LIGHT_SIDE_RANGE, -sigma_t * min(lowest, 0.0)))
 
 
@@ -465,9 +465,9 @@ def _light_top(params, frame: EpipolarFrame) -> float:
     return float(np.max(u)) + 1e-2 * params.scene_extent
 
 
-#: |second difference| of the blocker indices (in samples: queries / shares)
-#: at neighbouring light-ray boundaries above which an interval traces its
-#: §7 sub-rays
+#: |second difference| of the blocker indices at neighbouring light-ray
+#: boundaries above which an interval traces its §7 sub-rays (in queries;
+#: doubled where slice interpolation shares samples between two slices)
 EDGE_INDEX_JUMP = 1
 #: intervals on either side of a non-smooth boundary that trace their sub-rays too
 DILATE = 2

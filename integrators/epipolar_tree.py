@@ -342,7 +342,7 @@ def separated_kernel(params, queries, rays, rank: int, tol: float):
     x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
     # the per-query factor e^{-σt h_ref} multiplies the kernel's errors:
     # the automatic rank meets the tolerance after it (row_reference)
-    lowest = float(dr.min(rays.h_ref)[0])
+    lowest = float(dr.min(dr.select(dr.isfinite(rays.h), rays.h, 0.0))[0])
     seps = [separate_channel(float(sigma_t[c]), gamma_max, beta_lo, beta_hi, rank,
                              tol / light_side_gain(float(sigma_t[c]), lowest))
             for c in channels]

@@ -496,7 +496,7 @@ GAUSS_WEIGHTS = (0.5, 0.5)
 class _GaussNodes:
     """The Gauss nodes of every texel as equally-indexed 'light rays'
     (``2d`` per row) for :func:`~integrators.epipolar_tree.separated_kernel`,
-    which reads ``d``, ``gamma_max``, ``h_ref`` and ``positions(0.0)``."""
+    which reads ``d``, ``gamma_max``, ``h`` and ``positions(0.0)``."""
     rays: ProjectiveLightRays
 
     @property
@@ -508,8 +508,8 @@ class _GaussNodes:
         return self.rays.gamma_max
 
     @property
-    def h_ref(self):
-        return self.rays.h_ref
+    def h(self):
+        return self.rays.h
 
     def positions(self, offset: float = 0.0):
         s, lo = self.rays.positions(0.0)
