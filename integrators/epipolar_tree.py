@@ -87,6 +87,11 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                with lines at most ``slice_spacing`` px
                                apart (default 1: every pixel within half a
                                pixel of a slice)
+    ``slice_spacing``          the automatic slices' largest spacing [px]
+                               (default 1; 2: about half the slices, as
+                               fast as the nearest slice at 1 and still
+                               more accurate with interpolation on the
+                               nave, grove and terrain)
     ``slice_interpolation``    each camera sample is a query of both
                                neighbouring slices, weighted by its
                                position between them (default true;
