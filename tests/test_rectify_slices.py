@@ -59,6 +59,30 @@ def test_half_pixel_bound(sc):
 
 @SETTINGS
 @given(scenario_strategy())
+def test_spacing_bound(sc):
+    """``spacing`` s (the slice interpolation's coarser placement): every
+    pixel centre within s/2 px of a slice (the oracle's brute force), and
+    about 1/s of the slices of s = 1."""
+    cam, light, label = sc
+    fr = epipolar_frame(cam, light)
+    one = sinh_slices(fr).count
+    for spacing in (1.5, 2.0, 3.0):
+        s = sinh_slices(fr, spacing)
+        check_slices(fr, s)
+        ref = distance_to_slices_reference(fr, s)
+        assert ref.max() <= 0.5 * spacing + F64, (label, spacing, ref.max())
+        assert s.count <= one / spacing * 1.1 + 8, (label, spacing, s.count, one)
+
+
+def test_spacing_must_be_positive():
+    cam = rotated_camera()
+    fr = epipolar_frame(cam, light_toward_pixel(cam, 20.0, 14.0))
+    with pytest.raises(ValueError, match="spacing"):
+        sinh_slices(fr, 0.0)
+
+
+@SETTINGS
+@given(scenario_strategy())
 def test_pixel_to_slice_matches_reference(sc):
     cam, light, label = sc
     fr = epipolar_frame(cam, light)
