@@ -18,9 +18,9 @@ for similar quality"), with the visual match replaced by a measured one:
    setting: "both algorithms use a 4096x4096 shadow map");
 3. the ray marcher's time at the tree's relMSE is interpolated log-log
    between the two sweep settings that bracket it; speedup = that time / the
-   tree's time.  If even 2048 steps do not reach the tree's error, the
-   speedup is a lower bound (``>=``, time at 2048 steps); if 16 steps are
-   already better, an upper bound (``<=``).
+   tree's time.  If even the longest run (2048 steps) does not reach the
+   tree's error, the speedup is a lower bound (``>=``, the time of that
+   run); if the shortest is already better, an upper bound (``<=``).
 4. A second baseline, ``raymarch visibility=exact`` (32, 128, 512 steps,
    one run each): the ray marcher with the traced tree's own, ray-traced
    visibility.  The shadow-mapped marcher's relMSE has a floor set by its
@@ -109,7 +109,7 @@ def settings_of_run(s: dict) -> dict:
 def fine_settings_of_run(s: dict) -> dict:
     """The shadow-mapped ray marcher with a map of twice the resolution
     (4096²), whose error floor lies below the 2048² map's: one timed run
-    each after no warm-up, like the exact marcher (seconds a run)."""
+    each, no warm-up, like the exact marcher (seconds a run)."""
     res = 2 * s["shadowmap_resolution"]
     return {f"raymarch {res}² {n}": ("raymarch", {"visibility": "shadowmap", "steps": n,
                                                   "shadowmap_resolution": res})
