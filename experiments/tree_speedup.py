@@ -100,10 +100,13 @@ def settings_of_run(s: dict) -> dict:
                                                   {"slice_interpolation": False}),
            "tree resampled": ("epipolar_tree", {"rectification": "resampled",
                                                 "shadowmap_resolution": sm})}
-    for n in s["steps"]:
-        out[f"raymarch {n}"] = ("raymarch", {"visibility": "shadowmap", "steps": n,
-                                             "shadowmap_resolution": sm})
-    return out
+    return {**out, **marches("raymarch", s["steps"], visibility="shadowmap",
+                             shadowmap_resolution=sm)}
+
+
+def marches(label: str, steps, **props) -> dict:
+    """label -> (``raymarch``, properties) at each of ``steps``."""
+    return {f"{label} {n}": ("raymarch", {**props, "steps": n}) for n in steps}
 
 
 def fine_settings_of_run(s: dict) -> dict:
@@ -111,9 +114,8 @@ def fine_settings_of_run(s: dict) -> dict:
     (4096²), whose error floor lies below the 2048² map's: one timed run
     each, no warm-up, like the exact marcher (seconds a run)."""
     res = 2 * s["shadowmap_resolution"]
-    return {f"raymarch {res}² {n}": ("raymarch", {"visibility": "shadowmap", "steps": n,
-                                                  "shadowmap_resolution": res})
-            for n in s["fine_steps"]}
+    return marches(f"raymarch {res}²", s["fine_steps"], visibility="shadowmap",
+                   shadowmap_resolution=res)
 
 
 def baseline_of(props: dict, s: dict) -> str | None:
@@ -128,8 +130,7 @@ def exact_settings_of_run(s: dict) -> dict:
     """The ray marcher with exact (ray-traced) visibility, the same
     visibility as the traced tree: one timed run each, no warm-up (tens of
     seconds a run at 1280x960, kernel compilation < 2 % of it)."""
-    return {f"raymarch exact {n}": ("raymarch", {"visibility": "exact", "steps": n})
-            for n in s["exact_steps"]}
+    return marches("raymarch exact", s["exact_steps"], visibility="exact")
 
 
 # --------------------------------------------------------------------------

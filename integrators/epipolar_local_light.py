@@ -92,7 +92,7 @@ import numpy as np
 from rectify.coords import direction_to_alpha_beta
 
 from .epipolar_setup import (LIGHT_SIDE_RANGE, EpipolarQueries, LightRays, QueryTerms,
-                             auto_light_rays, gray, light_side_gain, sub_ray_gamma)
+                             auto_light_rays, gray, light_side_gains, sub_ray_gamma)
 from .integrand_svd import SAMPLES, separate_integrand
 from .kernel_table import tabulated_terms
 from .light_transport import (_slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
@@ -671,12 +671,9 @@ def local_separated_kernel(params, queries: EpipolarQueries, rays: LocalLightRay
     gamma_lo = float(dr.min(rays.gamma_lo)[0])
     gamma_hi = float(dr.max(rays.gamma_max)[0])
     beta_lo, beta_hi = float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
-    depth = L - rays.r_in
-    lowest = float(dr.min(dr.select(dr.isfinite(depth), depth, dr.inf))[0])
+    gains = light_side_gains(sigma_t, L - rays.r_in)
     seps = [separate_local_channel(params, float(sigma_t[c]), L, x_max, gamma_lo, gamma_hi,
-                                   beta_lo, beta_hi, rank,
-                                   tol / light_side_gain(float(sigma_t[c]), lowest))
-            for c in channels]
+                                   beta_lo, beta_hi, rank, tol / gains[c]) for c in channels]
     N = max(s[2].shape[1] for s in seps)
     C = len(channels)
     bounds = interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta)

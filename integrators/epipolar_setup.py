@@ -372,14 +372,23 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
         d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)),
                             float(dr.max(gamma_max)[0]))
     rays = LightRays(int(d), gamma_max, gamma_max / d, None, None)
+    add_box_exits(params, queries, rays)
+    dr.eval(rays.gamma_max, rays.delta_gamma)
+    return rays
+
+
+def add_box_exits(params, queries: EpipolarQueries, rays) -> None:
+    """Set ``rays.h`` (where the light ray through each centre,
+    ``rays.positions(0.5)``, leaves the medium box toward the light; +inf
+    if it misses the box) and the rows' ``rays.h_ref``
+    (:func:`row_reference`); any light-ray layout with ``positions``."""
     frame = queries.frame
     s, gamma = rays.positions(0.5)
     base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
     h, hits = axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
     rays.h = dr.select(hits, h, dr.inf)
     rays.h_ref = row_reference(params, rays.h, s, queries.n)
-    dr.eval(rays.gamma_max, rays.delta_gamma, rays.h, rays.h_ref)
-    return rays
+    dr.eval(rays.h, rays.h_ref)
 
 
 #: light-side range c: a light ray leaving the box toward the light at
@@ -403,7 +412,7 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
     the reference bounds the amplification to e^{c}; the light rays beyond
     it, worth at most e^{-c} ≈ 1e-3 of full scale, are dropped by
     :func:`light_side_factor`, and the automatic SVD rank tightens its
-    tolerance by the row's e^{σt h_ref} (:func:`light_side_gain`)."""
+    tolerance by the row's e^{σt h_ref} (:func:`light_side_gains`)."""
     h_ref = dr.full(mi.Float, dr.inf, n)
     dr.scatter_reduce(dr.ReduceOp.Min, h_ref, h, s)
     h_ref = dr.select(dr.isfinite(h_ref), h_ref, 0.0)
@@ -413,14 +422,16 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
     return h_ref
 
 
-def light_side_gain(sigma_t: float, lowest: float) -> float:
-    """e^{-σt·min(lowest, 0)}, at most e^{c}: how much a light-side factor
-    whose smallest path length is ``lowest`` (a directional light's
-    smallest h, :func:`row_reference`; a point light's smallest L − r_in)
-    amplifies the tree's absolute errors in a channel of extinction
-    ``sigma_t`` (e^{-σt h_ref}·L of its kept light rays reaches this):
-    the automatic SVD rank divides its tolerance by it."""
-    return math.exp(min(LIGHT_SIDE_RANGE, -sigma_t * min(lowest, 0.0)))
+def light_side_gains(sigma_t, path: mi.Float) -> list[float]:
+    """Per channel of extinction ``sigma_t``: e^{-σt·min(lowest, 0)}, at
+    most e^{c}, ``lowest`` the smallest finite light-side path length of
+    ``path`` (a directional light's h, :func:`row_reference`; a point
+    light's L − r_in): how much the light-side factor (e^{-σt h_ref}·L of
+    the kept light rays) amplifies the tree's absolute errors.  The
+    automatic SVD rank divides its tolerance by it."""
+    lowest = min(float(dr.min(dr.select(dr.isfinite(path), path, 0.0))[0]), 0.0)
+    return [math.exp(min(LIGHT_SIDE_RANGE, -float(st) * lowest))
+            for st in np.atleast_1d(np.asarray(sigma_t, np.float64))]
 
 
 def rectified_depth(queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:

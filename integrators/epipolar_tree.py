@@ -22,7 +22,7 @@ from .epipolar_local_light import (CHECK_POINTS, MAX_RANK,  # shared with the lo
 from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_terms,
                              first_leaf_visibility, gather_queries,
                              gray, last_interval_correction, last_interval_visibility,
-                             light_ray_grid, light_side_factor, light_side_gain,
+                             light_ray_grid, light_side_factor, light_side_gains,
                              rectified_depth,
                              shadow_map_blocker_angles, sweep_magnitude,
                              trace_sub_ray_blockers)
@@ -347,10 +347,9 @@ def separated_kernel(params, queries, rays, rank: int, tol: float):
     x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
     # the per-query factor e^{-σt h_ref} multiplies the kernel's errors:
     # the automatic rank meets the tolerance after it (row_reference)
-    lowest = float(dr.min(dr.select(dr.isfinite(rays.h), rays.h, 0.0))[0])
+    gains = light_side_gains(sigma_t, rays.h)
     seps = [separate_channel(float(sigma_t[c]), gamma_max, beta_lo, beta_hi, rank,
-                             tol / light_side_gain(float(sigma_t[c]), lowest))
-            for c in channels]
+                             tol / gains[c]) for c in channels]
     N = max(s[2].shape[1] for s in seps)
     C = len(channels)
     _, gamma = rays.positions(0.0)   # cell starts: φ in the query terms averages K

@@ -77,11 +77,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify.coords import light_coords_to_world
 from rectify.projective import ProjectiveColumns, ProjectiveRows
 
-from .epipolar_setup import (LightRays, axial_exit, cell_average, directional_query_terms,
-                             rectified_depth, row_reference)
+from .epipolar_setup import (LightRays, add_box_exits, cell_average, directional_query_terms,
+                             rectified_depth)
 from .fourier_basis import FilteredBasis, filtered_visibility, prefix_filter
 from .light_transport import color, segment_weight
 
@@ -415,13 +414,7 @@ def projective_light_rays(params, queries, rows: ProjectiveRows,
         x_widths=mi.Float(np.diff(e).astype(np.float32)),
         gamma_max=mi.Float((inv_cos64 * e[-1]).astype(np.float32)),
         delta_gamma=mi.Float((inv_cos64 * (e[-1] - e[0]) / columns.d).astype(np.float32)))
-    frame = queries.frame
-    s, gamma = rays.positions(0.5)
-    base = light_coords_to_world(frame, dr.gather(mi.Float, queries.alpha, s), gamma, 0.0)
-    h, hits = axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
-    rays.h = dr.select(hits, h, dr.inf)
-    rays.h_ref = row_reference(params, rays.h, s, queries.n)
-    dr.eval(rays.h, rays.h_ref)
+    add_box_exits(params, queries, rays)
     return rays
 
 
