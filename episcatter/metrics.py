@@ -75,6 +75,23 @@ def relmse(test, ref, eps: float = DEFAULT_EPS) -> float:
     return float(np.mean((test - ref) ** 2 / (ref**2 + eps)))
 
 
+def scale_free_relmse(test, ref, eps: float = DEFAULT_EPS) -> float:
+    """Scale-free relative MSE (DESIGN §2): mean over pixels and channels of
+    ``(test - ref)**2 / (ref**2 + eps * mean(ref)**2)``, default
+    ``eps = 1e-2``.  The regulariser is relative to the reference's own mean,
+    so multiplying both images by any positive constant leaves the value
+    unchanged; an all-black reference gives 0 where ``test == ref`` and
+    ``inf`` elsewhere."""
+    test, ref = _pair(test, ref)
+    floor = eps * float(np.mean(ref)) ** 2
+    if floor <= 0.0:
+        diff = (test - ref) ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(diff == 0.0, 0.0, diff / (ref**2))
+        return float(np.mean(q))
+    return float(np.mean((test - ref) ** 2 / (ref**2 + floor)))
+
+
 def rmse(test, ref) -> float:
     """Root mean squared error over pixels and channels."""
     test, ref = _pair(test, ref)
