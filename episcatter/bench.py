@@ -83,7 +83,7 @@ def _timed_render(scene, integrator, spp, seed=0):
     return img, seconds, dict(getattr(integrator, "timings", None) or {})
 
 
-def _median_stages(stage_runs: list[dict]) -> dict:
+def median_stages(stage_runs: list[dict]) -> dict:
     """Median of each stage present in every run."""
     if not stage_runs:
         return {}
@@ -144,7 +144,7 @@ def bench_job(scene_path: str, integrator_type: str, params: dict | None = None,
         times.append(seconds)
         if stages:
             stage_runs.append(stages)
-    stages = _median_stages(stage_runs)
+    stages = median_stages(stage_runs)
     sub = sum(v for k, v in stages.items() if k not in TEMPLATE_STAGES)
     result = {
         "scene": os.path.abspath(scene_path), "integrator": integrator_type,

@@ -112,7 +112,7 @@ def summarize(first_s: float, times: list[float], stage_runs: list[dict]) -> dic
     that build a visibility capture, i.e. raymarch's shadow map, see
     :func:`capture_substages`; unlike ``episcatter.bench``, which subtracts
     every sub-stage and would leave epipolar_tree almost nothing)."""
-    stages = bench._median_stages(stage_runs)   # median of each stage in every run
+    stages = bench.median_stages(stage_runs)   # median of each stage in every run
     scattering = stages.get("scattering", math.nan)
     return {"first_run_s": first_s, "times_s": times, "time_s": statistics.median(times),
             "time_min_s": min(times), "time_max_s": max(times), "stages": stages,

@@ -5,19 +5,17 @@
 variant set later.  When no variant is active it sets ``llvm_ad_rgb``.
 
 Before Dr.Jit is first imported it picks an LLVM that Dr.Jit can run with
-(see :mod:`integrators.llvm`); with an unusable LLVM it raises
-:class:`integrators.llvm.LLVMVersionError` naming the fix instead of letting
+(see :mod:`rectify.llvm`); with an unusable LLVM it raises
+:class:`rectify.llvm.LLVMVersionError` naming the fix instead of letting
 the process abort later.
 """
-from . import llvm as _llvm
-
-_llvm.configure()
+from rectify import llvm as _llvm  # configures LLVM and the default variant on import
 
 import importlib  # noqa: E402
 
 import mitsuba as mi  # noqa: E402
 
-DEFAULT_VARIANT = "llvm_ad_rgb"
+DEFAULT_VARIANT = _llvm.DEFAULT_VARIANT
 
 #: one module per method; each ends with its mi.register_integrator call.
 METHOD_MODULES = (
@@ -40,10 +38,5 @@ def _register_for_current_variant(*_):
         importlib.reload(importlib.import_module(module))
 
 
-if mi.variant() is None:
-    try:
-        mi.set_variant(DEFAULT_VARIANT)
-    except ImportError as err:  # Dr.Jit found no LLVM it accepts (e.g. only 14)
-        raise _llvm.LLVMVersionError(f"{err} {_llvm.FIX}") from err
 _register_for_current_variant()
 mi.detail.add_variant_callback(_register_for_current_variant)

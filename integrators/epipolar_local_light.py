@@ -95,13 +95,13 @@ from .epipolar_setup import (LIGHT_SIDE_RANGE, EpipolarQueries, LightRays, Query
                              auto_light_rays, gray, light_side_gains, sub_ray_gamma)
 from .integrand_svd import SAMPLES, separate_integrand
 from .kernel_table import tabulated_terms
-from .light_transport import (_slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
+from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
                               segment_weight)
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
 CONE_MARGIN = 1e-4
 #: extra points per axis on which the automatic rank is checked (besides the
-#: grid; also used by the directional kernel of :mod:`integrators.epipolar_tree`)
+#: grid; also used by the directional kernel of :mod:`integrators.kernel_separation`)
 CHECK_POINTS = 193
 #: largest automatic rank per colour channel (both light kinds)
 MAX_RANK = 24
@@ -214,7 +214,7 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
                           None, None, start, offset=m, d_count=count)
     s, gamma = rays.positions(0.5)
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
-    t_near, t_far = _slabs(mi.Point3f(point(frame.light_position)), w,
+    t_near, t_far = slabs(mi.Point3f(point(frame.light_position)), w,
                            point(params.medium.bounds_min), point(params.medium.bounds_max))
     rays.r_in = dr.select(t_far >= dr.maximum(t_near, 0.0), dr.maximum(t_near, 0.0), dr.inf)
     dr.eval(rays.gamma_max, rays.delta_gamma, rays.gamma_lo, rays.r_in, rays.offset, rays.d_count)
@@ -594,7 +594,7 @@ def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma
                            gamma_hi: float, beta_lo: float, beta_hi: float, rank: int,
                            tol: float):
     """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over [γ_lo, γ_hi] × [β_lo, β_hi],
-    as :func:`integrators.epipolar_tree.separate_channel` does for the
+    as :func:`integrators.kernel_separation.separate_channel` does for the
     directional kernel: M_jk = √w_j K(γ_j, β_k) s_k (s_k normalises each view
     ray's ∫K dγ, by the grid's quadrature), grids uniform in
     log(1 + c (γ − γ_lo)), c = σt L tan(β_hi/2) (K's steepest initial decay),

@@ -74,7 +74,7 @@ Ring (§6; :func:`in_ring`, :func:`march_ring`)
     Samples whose view ray is within ``ring_deg`` of ``±w_l`` (rectify's
     :func:`~rectify.ring_mask` definition, evaluated at the sample's own
     direction) are ray-marched by brute force with exact (ray-traced)
-    visibility, reusing :func:`integrators.raymarch.march`.  View rays
+    visibility, reusing :func:`integrators.marching.march`.  View rays
     within ``MIN_RING_RAD`` of the axis are always marched (``sin β → 0``).
 
 Point and spot lights (§9): :func:`epipolar_frame_of`,
@@ -104,10 +104,10 @@ from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, alpha_to_slice, make_slices
 
 from .capture import CameraCapture
-from .light_transport import (_slabs, color, first_blocker, phase_eval, point,
+from .light_transport import (slabs, color, first_blocker, phase_eval, point,
                               sample_light, segment_box, segment_weight, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
-from .raymarch import auto_spacing, march
+from .marching import auto_spacing, march
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5
@@ -731,7 +731,7 @@ def gray(sigma_t) -> bool:
 def axial_exit(params, x, w):
     """(h, hits): axial coordinate where the line x + u·w leaves the medium
     box toward the light, and whether the line meets the box at all."""
-    t_near, t_far = _slabs(x, w, point(params.medium.bounds_min), point(params.medium.bounds_max))
+    t_near, t_far = slabs(x, w, point(params.medium.bounds_min), point(params.medium.bounds_max))
     return t_far, t_far >= t_near
 
 

@@ -7,7 +7,7 @@ The rectified shadow map is built on the epipolar rectification shared with
 :mod:`integrators.fourier_setup`; the Fourier-basis prefilter and the
 per-pixel evaluation are :mod:`integrators.fourier_basis`; the separated
 kernels of ``weights="exact"`` are ``epipolar_tree``'s
-(:func:`integrators.epipolar_tree.separated_kernel`,
+(:func:`integrators.kernel_separation.separated_kernel`,
 :func:`integrators.epipolar_local_light.local_separated_kernel`).  Klehm's
 projective rectification (§4.2, ``rectification="projective"``) takes its
 rows and texels from :mod:`rectify.projective` and its unequal texels'
@@ -34,7 +34,7 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
                              directional_query_terms, epipolar_frame_of, light_ray_grid,
                              light_side_factor, shadow_map_blocker_angles,
                              trace_blocker_angles)
-from .epipolar_tree import separated_kernel
+from .kernel_separation import separated_kernel
 from .fourier_basis import check_M, region_length
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,

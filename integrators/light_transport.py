@@ -35,7 +35,7 @@ def point(v) -> mi.ScalarPoint3f:
     return mi.ScalarPoint3f(float(v[0]), float(v[1]), float(v[2]))
 
 
-def _slabs(p, d, bmin, bmax):
+def slabs(p, d, bmin, bmax):
     d = mi.Vector3f(d)
     d_safe = dr.select(dr.abs(d) < 1e-30, 1e-30, d)
     inv = dr.rcp(d_safe)
@@ -46,7 +46,7 @@ def _slabs(p, d, bmin, bmax):
 
 def box_exit_distance(p, d, bmin, bmax):
     """Distance along unit ``d`` from ``p`` (inside the box) to the box boundary."""
-    return dr.maximum(_slabs(p, d, bmin, bmax)[1], 0.0)
+    return dr.maximum(slabs(p, d, bmin, bmax)[1], 0.0)
 
 
 def sample_light(params, x, active=True):
@@ -66,7 +66,7 @@ def segment_box(params, x, wo, dist):
     """(τ, t_in, t_out): the part ``[t_in, t_out]`` of the segment
     ``x + s·wo``, ``s ∈ [0, dist]``, that lies inside the medium box, and its
     length τ (the light-side path length in the medium)."""
-    t_near, t_far = _slabs(x, wo, point(params.medium.bounds_min),
+    t_near, t_far = slabs(x, wo, point(params.medium.bounds_min),
                            point(params.medium.bounds_max))
     t_in = dr.clip(t_near, 0.0, dist)
     t_out = dr.maximum(dr.clip(t_far, 0.0, dist), t_in)

@@ -29,12 +29,10 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
 """
 from __future__ import annotations
 
-import drjit as dr
 import mitsuba as mi
 
-from .capture import capture_shadow_map, seed_offset
-from .light_transport import (color, light_transmittance, phase_eval, sample_light,
-                              segment_box, segment_weight, visible_exact)
+from .capture import capture_shadow_map
+from .marching import auto_spacing, march
 from .template import EpiscatterIntegrator, read_choice, read_number
 
 
@@ -55,69 +53,6 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         spacing = auto_spacing(params) if self.spacing == "auto" else self.spacing
         return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed,
                      spacing)
-
-
-def auto_spacing(params) -> str:
-    """Equiangular segments for point/spot lights, uniform for directional."""
-    return "uniform" if params.light.kind == "directional" else "equiangular"
-
-
-def step_boundaries(params, cap, steps, spacing):
-    """t(s) for s in [0, steps]: where segment k = [t(k), t(k+1)] lies on each
-    camera ray.  ``uniform``: t = d·s/steps.  ``equiangular`` (point/spot
-    lights; Kulla & Fajardo 2012): uniform in the angle θ subtended at the
-    light, t = t0 + b·tan θ (t0: the ray's closest approach to the light, b:
-    its distance), so segments shrink where 1/r² peaks."""
-    d = cap.d
-    if spacing == "uniform" or params.light.position is None:
-        return lambda s: d * (s / steps)
-    p_l = mi.Point3f(*map(float, params.light.position))
-    q = mi.Vector3f(p_l - cap.o)
-    t0 = dr.dot(q, cap.omega)
-    b = dr.norm(q - cap.omega * t0)
-    ok = b > 1e-6 * params.scene_extent
-    b = dr.select(ok, b, 1.0)
-    th_a, th_b = dr.atan2(-t0, b), dr.atan2(d - t0, b)
-
-    def t_of(s):
-        t = t0 + b * dr.tan(th_a + (th_b - th_a) * (s / steps))
-        return dr.select(ok, dr.clip(t, 0.0, d), d * (s / steps))
-    return t_of
-
-
-def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform"):
-    """L_scat per camera sample by ``steps`` analytic segments (see module doc)."""
-    n = dr.width(cap.d)
-    sigma_t = color(params.medium.sigma_t)
-    sigma_s = color(params.medium.sigma_s)
-    t_of = step_boundaries(params, cap, steps, spacing)
-    if jitter:
-        rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + seed_offset(seed, 0x853C49E6748FEA9B))
-        offset = rng.next_float32()
-    else:
-        offset = mi.Float(0.5)
-    n_steps = dr.opaque(mi.UInt32, steps)
-
-    def body(k, L):
-        s = mi.Float(k)
-        x = cap.o + cap.omega * t_of(s + offset)
-        wo, dist, L_light = sample_light(params, x)
-        tau, t_in, t_out = segment_box(params, x, wo, dist)
-        if shadow_map is None:
-            V = dr.select(visible_exact(params, x, wo, dist, t_in, t_out), 1.0, 0.0)
-        else:
-            V = shadow_map.visibility(x)
-        f_p = phase_eval(params, cap.omega, wo, x)
-        w = segment_weight(sigma_t, t_of(s), t_of(s + 1))
-        L += sigma_s * f_p * L_light * light_transmittance(params, tau) * V * w
-        return k + 1, L
-
-    k, L = dr.while_loop(
-        state=(mi.UInt32(0), dr.zeros(mi.Color3f, n)),
-        cond=lambda k, L: k < n_steps,
-        body=body,
-    )
-    return L
 
 
 mi.register_integrator("raymarch", lambda props: RaymarchIntegrator(props))

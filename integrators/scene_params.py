@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from .camera import CameraParams
+from rectify.camera import CameraParams
 
 SUPPORTED_PHASES = {
     "IsotropicPhaseFunction": "isotropic",

@@ -8,7 +8,7 @@ and has a float64 NumPy oracle ``*_reference`` beside it.
 Conventions
 -----------
 Pixels
-    Continuous film coordinates of :class:`integrators.camera.CameraParams`:
+    Continuous film coordinates of :class:`rectify.camera.CameraParams`:
     pixel ``(i, j)`` covers ``[i, i+1) x [j, j+1)``, centre ``(i+.5, j+.5)``,
     ``y`` down.  Per-pixel Dr.Jit results are flat arrays of ``W*H`` entries,
     row-major (``index = y*W + x``); NumPy oracles return ``(H, W)`` arrays;
@@ -52,9 +52,12 @@ Projective rectification (Klehm 2014 §4.2)
     ``(None, reason)``; NDC ``x`` = along view rays (increasing), ``y`` = slice
     row, ``z`` = depth, constant along view rays, growing away from the light.
 """
-# `integrators` picks a usable LLVM before Dr.Jit is first imported and sets
-# the default variant when none is active: import it before anything else.
-import integrators as _integrators  # noqa: F401,E402  isort:skip
+# Pick a usable LLVM before Dr.Jit is first imported (rectify.llvm imports
+# neither), then set the default variant when none is active.
+from . import llvm as _llvm  # noqa: E402  isort:skip
+
+_llvm.configure()
+_llvm.set_default_variant()
 
 from .coords import (alpha_beta_to_direction, alpha_beta_to_direction_reference,
                      alpha_beta_to_pixel, alpha_beta_to_pixel_reference,

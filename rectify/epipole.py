@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from integrators.camera import CameraParams
+from rectify.camera import CameraParams
 
 CASES = ("on_screen", "off_screen", "at_infinity", "behind")
 LIGHT_KINDS = ("directional", "point", "spot")

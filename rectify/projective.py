@@ -55,7 +55,7 @@ import numpy as np
 
 from ._dr import const
 from .epipole import EpipolarFrame
-from .slices import Slices, _exit_edges, _uniform_edge_points, slice_lines
+from .slices import Slices, exit_edges, uniform_edge_points, slice_lines
 
 DEFAULT_MIN_ANGLE_DEG = 5.0
 
@@ -245,8 +245,8 @@ def _border_probes(frame: EpipolarFrame, rect: ProjectiveRectification):
     """(points (P, 2), r (P,)) of points at most ``ROW_PROBE_PX`` apart
     along the exit edges (corners included), sorted by r (duplicated
     corners dropped)."""
-    pts = np.concatenate([_uniform_edge_points(P0, P1, ROW_PROBE_PX)
-                          for P0, P1, _, _ in _exit_edges(frame)])
+    pts = np.concatenate([uniform_edge_points(P0, P1, ROW_PROBE_PX)
+                          for P0, P1, _, _ in exit_edges(frame)])
     d = frame.camera.direction(pts[:, 0], pts[:, 1])
     r = (d @ rect.view[1, :3]) / (d @ rect.view[0, :3])
     order = np.argsort(r, kind="stable")

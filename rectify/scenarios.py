@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from integrators.camera import CameraParams
+from rectify.camera import CameraParams
 
 from .epipole import LightGeometry, make_camera
 

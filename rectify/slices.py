@@ -77,7 +77,7 @@ def _edges(width: float, height: float):
     return [(c[i], c[(i + 1) % 4], normals[i]) for i in range(4)]
 
 
-def _exit_edges(frame: EpipolarFrame):
+def exit_edges(frame: EpipolarFrame):
     """(P0, P1, n, h) of the edges whose line has the epipole on the image side;
     h = distance from E to the edge line [px] (inf at infinity)."""
     out = []
@@ -94,7 +94,7 @@ def _exit_edges(frame: EpipolarFrame):
     return out
 
 
-def _uniform_edge_points(P0, P1, spacing):
+def uniform_edge_points(P0, P1, spacing):
     length = float(np.linalg.norm(P1 - P0))
     n = max(1, int(math.ceil(length / spacing - 1e-9)))
     s = np.arange(n + 1) / n
@@ -109,7 +109,7 @@ def _sinh_edge_points(frame: EpipolarFrame, P0, P1, n, h, spacing: float = 1.0):
     if math.isinf(h):
         # parallel lines: ``spacing`` px apart perpendicular to them
         cosang = abs(float(n @ frame.direction))
-        return _uniform_edge_points(P0, P1, spacing / cosang)
+        return uniform_edge_points(P0, P1, spacing / cosang)
     if h <= 0.5:
         return np.stack([P0, P1])
     F = frame.epipole + h * n                        # foot of the perpendicular
@@ -157,7 +157,7 @@ def uniform_slices(frame: EpipolarFrame, spacing: float = 1.0) -> Slices:
     included; ``spacing = 1`` guarantees the half-pixel bound."""
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
-    pts = [_uniform_edge_points(P0, P1, spacing) for P0, P1, _, _ in _exit_edges(frame)]
+    pts = [uniform_edge_points(P0, P1, spacing) for P0, P1, _, _ in exit_edges(frame)]
     return slices_from_points(frame, np.concatenate(pts), method="uniform")
 
 
@@ -166,7 +166,7 @@ def sinh_slices(frame: EpipolarFrame, spacing: float = 1.0) -> Slices:
     apart (1: Baran's half-pixel bound)."""
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
-    pts = [_sinh_edge_points(frame, P0, P1, n, h, spacing) for P0, P1, n, h in _exit_edges(frame)]
+    pts = [_sinh_edge_points(frame, P0, P1, n, h, spacing) for P0, P1, n, h in exit_edges(frame)]
     return slices_from_points(frame, np.concatenate(pts), method="sinh")
 
 

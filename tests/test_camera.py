@@ -3,7 +3,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.camera import CameraParams
+from rectify.camera import CameraParams
 
 T = mi.ScalarTransform4f
 

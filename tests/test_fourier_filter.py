@@ -12,7 +12,7 @@ from integrators.capture import capture_camera
 from integrators.epipolar_local_light import light_ray_factor, local_separated_kernel
 from integrators.epipolar_setup import (assign_queries, blocker_modes, choose_slices,
                                         epipolar_frame_of, light_side_factor, rectified_depth)
-from integrators.epipolar_tree import separated_kernel
+from integrators.kernel_separation import separated_kernel
 from integrators.fourier_filter import PROJECTIVE_MIN_ANGLE
 from integrators.fourier_setup import (Coverage, ProjectiveLightRays, eq12_ratio_reference,
                                        eq12_weights_reference, query_beta_range,

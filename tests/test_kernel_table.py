@@ -10,7 +10,7 @@ import pytest
 
 from episcatter.metrics import relmse
 from integrators import kernel_table
-from integrators.epipolar_tree import exp_kernel_sum, separate_channel
+from integrators.kernel_separation import exp_kernel_sum, separate_channel
 from tests.conftest import scene_dict
 
 

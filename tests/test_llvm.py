@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from integrators import llvm
+from rectify import llvm
 
 
 @pytest.mark.parametrize("name,major", [

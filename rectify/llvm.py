@@ -38,6 +38,10 @@ SYSTEM_DIRS = (
 )
 
 
+#: the variant ``import integrators`` / ``import rectify`` set when none is active
+DEFAULT_VARIANT = "llvm_ad_rgb"
+
+
 class LLVMVersionError(ImportError):
     """Dr.Jit's LLVM backend is missing or uses an LLVM it cannot run with."""
 
@@ -123,3 +127,14 @@ def check(variant: str) -> None:
             f"Dr.Jit loaded LLVM {'.'.join(map(str, version))}; it needs "
             f"LLVM >= {MIN_MAJOR} (LLVM 15 aborts the process at the first "
             f"dr.maximum, LLVM 14 is refused). " + FIX)
+
+
+def set_default_variant() -> None:
+    """Set :data:`DEFAULT_VARIANT` when no Mitsuba variant is active (after
+    :func:`configure`); an unusable LLVM raises :class:`LLVMVersionError`."""
+    import mitsuba as mi
+    if mi.variant() is None:
+        try:
+            mi.set_variant(DEFAULT_VARIANT)
+        except ImportError as err:  # Dr.Jit found no LLVM it accepts (e.g. only 14)
+            raise LLVMVersionError(f"{err} {FIX}") from err
