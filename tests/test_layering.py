@@ -1,0 +1,97 @@
+"""The import layers of DESIGN §6, checked on the source (no imports run):
+``rectify/`` is a leaf (it imports nothing from ``integrators``), no plugin
+module imports another plugin module (nor does any shared stage import a
+plugin, which would register it), and no private ``_name`` is imported
+across modules."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARY = ("integrators", "rectify", "episcatter", "experiments")
+#: the plugin modules: class + docstring + registration
+PLUGINS = ("integrators.raymarch", "integrators.epipolar_tree", "integrators.fourier_filter")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports_of(path: Path):
+    """(imported module, imported names) of every import statement in ``path``."""
+    return imports_in(path.read_text(), module_name(path), path.name == "__init__.py")
+
+
+def imports_in(source: str, module: str, is_package: bool = False):
+    """(imported module, imported names) of every import statement of
+    ``source`` (module ``module``), relative imports resolved."""
+    tree = ast.parse(source)
+    package = module.split(".")
+    if not is_package:
+        package = package[:-1]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, ()
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[:len(package) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module
+            names = tuple(a.name for a in node.names)
+            yield mod, names
+            for name in names:   # `from . import x` imports the module x
+                yield f"{mod}.{name}", ()
+
+
+def library_files():
+    for top in LIBRARY:
+        yield from sorted((ROOT / top).rglob("*.py"))
+
+
+def test_library_files_are_found():
+    names = {module_name(p) for p in library_files()}
+    assert set(PLUGINS) <= names and "rectify.slices" in names
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "rectify").rglob("*.py")),
+                         ids=lambda p: p.name)
+def test_rectify_is_a_leaf(path):
+    bad = [m for m, _ in imports_of(path) if m == "integrators" or m.startswith("integrators.")
+           or m == "episcatter" or m.startswith("episcatter.")]
+    assert not bad, f"{module_name(path)} imports {bad}: rectify/ must not import up the layers"
+
+
+@pytest.mark.parametrize("path", list(library_files()), ids=module_name)
+def test_no_plugin_imports_a_plugin(path):
+    """Only the registry (``integrators/__init__``) and code above the
+    integrators (episcatter, experiments) may name a plugin module."""
+    me = module_name(path)
+    if me == "integrators" or not me.startswith("integrators"):
+        return
+    bad = [m for m, _ in imports_of(path) if m in PLUGINS and m != me]
+    assert not bad, f"{me} imports plugin module(s) {bad}; move the shared code to a stage module"
+
+
+@pytest.mark.parametrize("path", list(library_files()), ids=module_name)
+def test_no_private_name_crosses_modules(path):
+    bad = [(m, n) for m, names in imports_of(path) for n in names
+           if n.startswith("_") and not n.startswith("__")
+           and (m.split(".")[0] in LIBRARY)]
+    assert not bad, f"{module_name(path)} imports private names {bad}: make them public"
+
+
+def test_checker_resolves_relative_and_private_imports():
+    """The checks above would see a module that breaks the rules."""
+    src = "from integrators.template import _x\nfrom . import slices\nfrom ..integrators import a\n"
+    found = list(imports_in(src, "rectify.probe"))
+    assert ("integrators.template", ("_x",)) in found
+    assert ("rectify.slices", ()) in found
+    assert ("integrators", ("a",)) in found
