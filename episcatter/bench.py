@@ -12,7 +12,7 @@ from its disk cache, so this is an upper bound on the run time, not a pure
 compile time); then ``repeats`` renders through ``mi.render`` with
 ``dr.eval`` + ``dr.sync_thread`` before the clock stops.  ``time_s`` is the
 median end-to-end wall time of those; for episcatter integrators the median
-of each stage in ``integrator.timings`` is also reported (``stage_<name>_s``,
+of each stage in the render's ``RenderResult.timings`` is also reported (``stage_<name>_s``,
 ``scattering_s`` = the scattering stage alone, camera capture excluded, the
 papers' convention; ``scattering_net_s`` also excludes the method's own
 sub-stages, e.g. building the shadow map).  Plain Mitsuba integrators (e.g. ``volpath``) only have
@@ -45,7 +45,7 @@ from . import metrics
 from .reference import environment, load_halves, load_reference, render_reference, render_rgb
 
 SPP_PARAM = "spp"
-#: stages of the render template; any other stage in integrator.timings is a
+#: stages of the render template; any other stage in RenderResult.timings is a
 #: method's sub-stage of "scattering" (e.g. raymarch's "shadowmap").
 TEMPLATE_STAGES = ("validate", "capture", "scattering", "compose", "total")
 METRIC_KEYS = ("relmse", "rmse", "mape", "max_error", "mean_ratio", "flip")
@@ -75,12 +75,26 @@ def params_for(integrator_type: str, params: dict | None) -> dict:
     return out
 
 
+def render_with_stages(scene, integrator, spp: int = 0, seed: int = 0):
+    """(finished (H, W, 3) float32 image, stage timings) of one render: an
+    episcatter integrator's stage times travel with its ``RenderResult``
+    (``render_layers``); any other integrator renders through ``mi.render``
+    (no stages)."""
+    if not hasattr(integrator, "render_layers"):
+        return render_rgb(scene, integrator, spp=spp, seed=seed), {}
+    result = integrator.render_layers(scene, 0, seed, spp)
+    img = np.array(result[integrator.output], dtype=np.float32)
+    if img.shape[-1] == 1:
+        img = np.repeat(img, 3, axis=-1)
+    return np.ascontiguousarray(img[..., :3]), dict(result.timings)
+
+
 def _timed_render(scene, integrator, spp, seed=0):
     """(image, wall seconds, integrator stage timings or {})."""
     t0 = time.perf_counter()
-    img = render_rgb(scene, integrator, spp=spp, seed=seed)
+    img, stages = render_with_stages(scene, integrator, spp=spp, seed=seed)
     seconds = time.perf_counter() - t0
-    return img, seconds, dict(getattr(integrator, "timings", None) or {})
+    return img, seconds, stages
 
 
 def median_stages(stage_runs: list[dict]) -> dict:
@@ -116,7 +130,7 @@ def bench_job(scene_path: str, integrator_type: str, params: dict | None = None,
     Returns a flat dict: the inputs, ``width``/``height``, ``load_s``,
     ``first_run_s`` (warm-up: compile + first run), ``times_s`` (each timed
     run), ``time_s`` (their median), ``time_min_s``, ``time_max_s``,
-    ``stages`` (median seconds per stage of ``integrator.timings``, empty for
+    ``stages`` (median seconds per stage of ``RenderResult.timings``, empty for
     plain Mitsuba integrators), ``scattering_s`` (the scattering stage, NaN
     without stages), ``scattering_net_s`` (it minus the method's own
     sub-stages such as a shadow-map build), and,
@@ -324,7 +338,7 @@ def write_json(path, settings, results) -> None:
     doc = {"settings": settings, "environment": environment(),
            "timing": {"time_s": "median end-to-end wall time of mi.render (+ eval, sync)",
                       "first_run_s": "warm-up render: kernel compilation + first run",
-                      "scattering_s": "median of integrator.timings['scattering']",
+                      "scattering_s": "median of RenderResult.timings['scattering']",
                       "scattering_net_s": "scattering_s minus the method's sub-stages "
                                           "(stages other than " + ", ".join(TEMPLATE_STAGES) + ")"},
            "comparison": f"block-averaged over {settings['block']}x{settings['block']} pixels "

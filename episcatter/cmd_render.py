@@ -34,13 +34,13 @@ def add_arguments(p):
 
 
 def _layers_as_numpy(integ, scene, seed, spp):
-    """Render once; every layer as (H, W, C) numpy arrays."""
+    """Render once: (every layer as (H, W, C) numpy arrays, stage timings)."""
     if hasattr(integ, "render_layers"):
-        layers = integ.render_layers(scene, 0, seed, spp)
-        return {k: np.array(v) for k, v in layers.items()}
+        result = integ.render_layers(scene, 0, seed, spp)
+        return {k: np.array(v) for k, v in result.items()}, result.timings
     import mitsuba as mi
     img = mi.render(scene, integrator=integ, seed=seed, spp=spp)
-    return {"full": np.array(img)[..., :3]}
+    return {"full": np.array(img)[..., :3]}, {}
 
 
 def find_reference(args, defines):
@@ -60,7 +60,7 @@ def run(args) -> int:
     integ = make_integrator(args.integrator, props, scene)
     kind = args.integrator or "scene"
     t0 = time.perf_counter()
-    layers = _layers_as_numpy(integ, scene, args.seed, args.spp)
+    layers, timings = _layers_as_numpy(integ, scene, args.seed, args.spp)
     dr.sync_thread()
     elapsed = time.perf_counter() - t0
     out = args.output or f"{os.path.splitext(os.path.basename(args.scene))[0]}_{kind}.exr"
@@ -75,7 +75,6 @@ def run(args) -> int:
     h, w = main.shape[:2]
     print(f"rendered {args.scene} ({w}x{h}) with {kind} in {elapsed:.3f} s "
           "(includes kernel compilation on a first run)")
-    timings = getattr(integ, "timings", None)
     if timings:
         print("  stages: " + ", ".join(f"{k} {v:.3f} s" for k, v in timings.items()))
     print(f"  wrote {out} and {png}")

@@ -7,7 +7,7 @@
   warm-up render per setting (compile + first run, reported apart), then
   ``repeats`` timed rounds that visit every setting once each (interleaved,
   so a change of machine load hits all settings alike), medians of the
-  end-to-end time and of every stage of ``integrator.timings``;
+  end-to-end time and of every stage of the render's ``RenderResult.timings``;
 - errors: :func:`errors` -- :func:`episcatter.metrics.compare` at several
   block sizes, flattened into ``relmse_b1``, ``flip_b2``, ...;
 - output: :func:`output_dir`, :func:`write_csv`, :func:`write_json`,
@@ -100,9 +100,9 @@ def load_average() -> list[float]:
 def _render_once(scene, integrator, spp: int):
     """(image, wall seconds, stage timings) of one finished render."""
     t0 = time.perf_counter()
-    img = render_rgb(scene, integrator, spp=spp)
+    img, stages = bench.render_with_stages(scene, integrator, spp=spp)
     seconds = time.perf_counter() - t0
-    return img, seconds, dict(getattr(integrator, "timings", None) or {})
+    return img, seconds, stages
 
 
 def summarize(first_s: float, times: list[float], stage_runs: list[dict]) -> dict:
@@ -473,7 +473,7 @@ def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": run.scenes,
                 "reference": reference_note(s["reference_steps"]),
                 "conventions": {**conventions,
-                                "scattering": "integrator.timings['scattering'] (median)",
+                                "scattering": "RenderResult.timings['scattering'] (median)",
                                 "total": "end-to-end mi.render wall time (median)"},
                 "quick": args.quick, **{k: (v(s) if callable(v) else v)
                                         for k, v in extra_settings.items()}}

@@ -43,7 +43,7 @@ import sys
 import statistics
 import time
 
-from episcatter.reference import render_rgb
+from episcatter import bench
 
 from . import common as c
 from .fourier_table2 import STAGES, load_text, paper_time, record_shadow_maps, timing_columns
@@ -77,9 +77,9 @@ def timed_render(scene, integrator, log: list) -> tuple:
     render, its rectified shadow map recorded."""
     with record_shadow_maps(log):
         t0, cpu0 = time.perf_counter(), time.process_time()
-        img = render_rgb(scene, integrator)
+        img, stages = bench.render_with_stages(scene, integrator)
         seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
-    return img, seconds, dict(integrator.timings), cpu
+    return img, seconds, stages, cpu
 
 
 def warm_up(jobs: dict) -> dict:
@@ -260,7 +260,7 @@ def main(argv=None):
     print(text)
     settings = {"name": NAME, **s, "repeats": repeats, "scenes": run.scenes,
                 "target_ratio": TARGET_RATIO,
-                "conventions": {"scattering": "integrator.timings['scattering'] (median)",
+                "conventions": {"scattering": "RenderResult.timings['scattering'] (median)",
                                 "paper": "scattering minus the 'blockers' stage",
                                 "total": "end-to-end mi.render wall time (median)"},
                 "quick": args.quick}

@@ -17,6 +17,12 @@ import mitsuba as mi  # noqa: E402
 
 DEFAULT_VARIANT = _llvm.DEFAULT_VARIANT
 
+#: the modules defining integrator base classes (subclasses of the active
+#: variant's ``mi.SamplingIntegrator``), reloaded first, in this order
+TEMPLATE_MODULES = (
+    "integrators.template",
+    "integrators.epipolar_template",
+)
 #: one module per method; each ends with its mi.register_integrator call.
 METHOD_MODULES = (
     "integrators.raymarch",
@@ -33,8 +39,7 @@ def _register_for_current_variant(*_):
     if variant is None:
         return
     _llvm.check(variant)
-    importlib.reload(importlib.import_module("integrators.template"))
-    for module in METHOD_MODULES:
+    for module in TEMPLATE_MODULES + METHOD_MODULES:
         importlib.reload(importlib.import_module(module))
 
 

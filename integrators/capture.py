@@ -21,7 +21,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .light_transport import (box_exit_distance, color, first_blocker, light_transmittance,
+from .light_transport import (as_color3, box_exit_distance, color, first_blocker, light_transmittance,
                               point, segment_box, visible_exact)
 
 #: null-BSDF surfaces a camera or light ray may pass before we give up.
@@ -56,6 +56,21 @@ def first_surface(scene, ray, active=True):
 def seed_offset(seed: int, salt: int) -> int:
     """A 64-bit PCG32 state offset for ``seed`` (wrapped, never overflowing)."""
     return (salt * (int(seed) + 1)) & 0xFFFFFFFFFFFFFFFF
+
+
+#: PCG32's default sequence (increment) constant
+PCG32_DEFAULT_STREAM = 0xDA3E39CB94B95BDB
+
+
+def sample_rng(index: mi.UInt32, state: int) -> mi.PCG32:
+    """One PCG32 per camera sample, keyed by its ``index`` in the full
+    capture: the generator ``mi.PCG32(size=n, initstate=arange(n) + state)``
+    gives sample ``index`` (that constructor adds ``arange`` to the state and
+    the sequence), so a partial render draws the full render's numbers."""
+    i = mi.UInt64(index)
+    rng = mi.PCG32(size=dr.width(i))
+    rng.seed(initstate=i + i + mi.UInt64(state), initseq=mi.UInt64(PCG32_DEFAULT_STREAM) + i)
+    return rng
 
 
 def _camera_positions(width, height, spp, jitter, seed):
@@ -94,9 +109,40 @@ class CameraCapture:
     T_cam: mi.Color3f       # e^{-σt d}
     L_surface: mi.Color3f   # lit surface radiance at the hit, before T_cam
     hit: mi.Bool            # the ray meets a non-null surface
+    #: index of each sample in the full capture (pixel*spp + k); None: all of
+    #: them in order (a full capture)
+    sample: mi.UInt32 | None = None
+    #: the full capture this one is a subset of (None: this is the full one)
+    parent: "CameraCapture | None" = None
 
     def endpoints(self) -> mi.Point3f:
         return self.o + self.omega * self.d
+
+    @property
+    def count(self) -> int:
+        """Number of camera samples held."""
+        return dr.width(self.d)
+
+    def whole(self) -> "CameraCapture":
+        """The full capture (``self`` unless this is a subset): frame-wide
+        choices (a shadow map's fit) are made on it, so that a partial render
+        computes its samples exactly as the full render does."""
+        return self if self.parent is None else self.parent
+
+    def sample_index(self) -> mi.UInt32:
+        """Index of each held sample in the full capture's order."""
+        return dr.arange(mi.UInt32, self.count) if self.sample is None else self.sample
+
+    def subset(self, index: mi.UInt32) -> "CameraCapture":
+        """The samples at positions ``index`` of this capture (a partial
+        render's capture: the same rays, a subset of them)."""
+        def take(v):
+            return dr.gather(type(v), v, index)
+        return CameraCapture(width=self.width, height=self.height, spp=self.spp,
+                             pixel=take(self.pixel), o=take(self.o), omega=take(self.omega),
+                             d=take(self.d), T_cam=take(self.T_cam),
+                             L_surface=take(self.L_surface), hit=take(self.hit),
+                             sample=take(self.sample_index()), parent=self.whole())
 
 
 def capture_camera(params, spp=1, jitter=False, seed=0, surface=True) -> CameraCapture:
@@ -130,7 +176,7 @@ def surface_direct_lighting(params, si, ray):
     vis = visible_exact(params, x, wo, dist, t_in, t_out, active)
     bsdf = si.bsdf(ray)
     f = bsdf.eval(mi.BSDFContext(), si, si.to_local(wo), active)
-    L = mi.Color3f(f) * mi.Color3f(spec) * light_transmittance(params, tau)
+    L = as_color3(f) * as_color3(spec) * light_transmittance(params, tau)
     return dr.select(active & vis, L, 0.0)
 
 
@@ -255,7 +301,7 @@ def capture_shadow_map(params, camera_capture: CameraCapture, res: int) -> Shado
     extent = params.scene_extent
     if light.kind == "directional":
         e1, e2, w = _orthonormal(light.direction)
-        pts = camera_capture.endpoints()
+        pts = camera_capture.whole().endpoints()
         u = dr.dot(mi.Vector3f(pts), mi.Vector3f(*map(float, e1)))
         v = dr.dot(mi.Vector3f(pts), mi.Vector3f(*map(float, e2)))
         o = params.camera.origin

@@ -121,7 +121,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     =========================  =============================================
 
     Plus the template's ``output``, ``samples_per_pixel``, ``jitter_pixels``.
-    ``self.timings`` splits the scattering stage into ``rectify``,
+    ``RenderResult.timings`` splits the scattering stage into ``rectify``,
     ``blockers``, ``svd``, ``sweep``, ``unrectify`` and ``ring``.
 
     Does not: textured directional lights, translucent blockers,
@@ -166,8 +166,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         continuation behind the surface, but -- where those modes are mixed
         -- by exact shadow rays from the covered part of the query's own ray
         (:func:`~integrators.epipolar_setup.last_interval_visibility`,
-        inside the ``unrectify`` stage); ``self.last_interval_traced``: how
-        many of the ``self.query_count`` queries traced them."""
+        inside the ``unrectify`` stage); the render's
+        ``stats["last_interval_traced"]``: how many of its
+        ``stats["query_count"]`` queries traced them."""
         local = params.light.kind != "directional"
         with self.stage("rectify") as keep:
             if local:
@@ -205,7 +206,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms.magnitude = sweep_magnitude(queries, A, B, L)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.append(value)
-        self.last_interval_traced, self.query_count = last.traced, queries.count
+        self.record(last_interval_traced=last.traced, query_count=queries.count)
         return value
 
     def blocker_angles(self, params, cap, queries, rays, lit=None):

@@ -225,9 +225,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     =========================  =============================================
 
     Plus the template's ``output``, ``samples_per_pixel``, ``jitter_pixels``.
-    ``self.timings`` splits the scattering stage into ``rectify``,
+    ``RenderResult.timings`` splits the scattering stage into ``rectify``,
     ``blockers``, ``svd``, ``prefilter``, ``evaluate``, ``unrectify`` and
-    ``ring``; ``self.rectification_used`` says which rectification the last
+    ``ring``; ``RenderResult.stats["rectification_used"]`` says which rectification the
     render took (``epipolar`` or ``projective``).
 
     =====================  ==================================================
@@ -289,7 +289,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                                 maximum=90.0)
         self.projective_splits = read_number(props, "projective_splits", 0, minimum=0,
                                              maximum=4096, integer=True)
-        self.rectification_used = None
         self.blockers = read_choice(props, "blockers", "traced", BLOCKERS)
 
     @property
@@ -300,9 +299,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     def choose_rows(self, params, cap):
         """The template's epipolar slices, or the projective map's rows when
         :meth:`projective_plan` returns one (then also the plan);
-        ``self.rectification_used`` says which the last render took."""
+        the render's ``stats["rectification_used"]`` says which it took."""
         plan = self.projective_plan(params, cap)
-        self.rectification_used = "epipolar" if plan is None else "projective"
+        self.record(rectification_used="epipolar" if plan is None else "projective")
         if plan is None:
             return super().choose_rows(params, cap)
         return plan.frame, plan.rows.slices, plan

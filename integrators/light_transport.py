@@ -30,6 +30,17 @@ def color(v) -> mi.Color3f:
     return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
 
+def as_color3(value) -> mi.Color3f:
+    """A Mitsuba ``Spectrum`` (or Float) as Color3f: in ``*_mono`` variants
+    its one channel three times (the methods compute in Color3f; the
+    template keeps one channel of the result)."""
+    if isinstance(value, mi.Color3f):
+        return value
+    if dr.is_array_v(value) and dr.depth_v(value) > 1 and dr.size_v(value) == 1:
+        value = value[0]
+    return mi.Color3f(value)
+
+
 def point(v) -> mi.ScalarPoint3f:
     v = np.asarray(v, dtype=np.float64).reshape(-1)
     return mi.ScalarPoint3f(float(v[0]), float(v[1]), float(v[2]))
@@ -59,7 +70,7 @@ def sample_light(params, x, active=True):
     if params.light.kind == "directional":
         # Mitsuba returns a finite ds.dist (about the scene diameter) here.
         dist = dr.full(mi.Float, dr.inf, dr.width(ds.dist))
-    return ds.d, dist, mi.Color3f(spec)
+    return ds.d, dist, as_color3(spec)
 
 
 def segment_box(params, x, wo, dist):
@@ -113,7 +124,7 @@ def phase_eval(params, omega, wo, x=None):
         mei.p = x
     ctx = mi.PhaseFunctionContext(None)
     value = params.medium.phase.eval_pdf(ctx, mei, wo)[0]
-    return mi.Color3f(value) if not isinstance(value, mi.Color3f) else value
+    return as_color3(value)
 
 
 def segment_weight(sigma_t, a, b):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .capture import seed_offset
+from .capture import sample_rng, seed_offset
 from .light_transport import (color, light_transmittance, phase_eval, sample_light,
                               segment_box, segment_weight, visible_exact)
 
@@ -52,8 +52,8 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
     sigma_s = color(params.medium.sigma_s)
     t_of = step_boundaries(params, cap, steps, spacing)
     if jitter:
-        rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + seed_offset(seed, 0x853C49E6748FEA9B))
-        offset = rng.next_float32()
+        offset = sample_rng(cap.sample_index(),
+                            seed_offset(seed, 0x853C49E6748FEA9B)).next_float32()
     else:
         offset = mi.Float(0.5)
     n_steps = dr.opaque(mi.UInt32, steps)

@@ -51,7 +51,7 @@ class RaymarchIntegrator(EpiscatterIntegrator):
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
         spacing = auto_spacing(params) if self.spacing == "auto" else self.spacing
-        return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed,
+        return march(params, cap, self.steps, shadow_map, self.jitter, self.render_record.seed,
                      spacing)
 
 

@@ -62,8 +62,10 @@ SCENES = {
 
 
 def render(scene, integrator, **props):
+    """(scattering image, the RenderResult: ``.timings``, ``.stats``)."""
     integ = mi.load_dict({"type": integrator, "output": "scattering", **props})
-    return np.array(integ.render(scene)), integ
+    result = integ.render_layers(scene)
+    return np.array(result["scattering"]), result
 
 
 def reference(scene):
@@ -108,10 +110,10 @@ def test_converges_to_exact_raymarch(name, phase):
 
 def test_default_settings_are_close():
     scene = mi.load_dict(scene_dict(res=RES, **SCENES["on_screen"]))
-    img, integ = render(scene, "epipolar_tree")
+    img, res = render(scene, "epipolar_tree")
     assert normalised_relmse(img, reference(scene)) < 3e-3
     for stage in ("rectify", "blockers", "svd", "sweep", "unrectify", "ring"):
-        assert stage in integ.timings
+        assert stage in res.timings
 
 
 @pytest.mark.parametrize("sigma_t", [{"type": "rgb", "value": [0.1, 0.3, 0.9]}, 0.5])
@@ -243,10 +245,10 @@ def test_local_lights_converge_to_exact_raymarch(name, phase):
 @pytest.mark.parametrize("name", ["point_in_view", "spot_headlight"])
 def test_local_default_settings_are_close(name):
     scene = mi.load_dict(scene_dict(res=RES, **LOCAL_SCENES[name]))
-    img, integ = render(scene, "epipolar_tree")
+    img, res = render(scene, "epipolar_tree")
     assert normalised_relmse(img, reference(scene)) < 3e-3
     for stage in ("rectify", "blockers", "svd", "sweep", "unrectify", "ring"):
-        assert stage in integ.timings
+        assert stage in res.timings
 
 
 def hg(g):
@@ -363,14 +365,14 @@ def test_no_light_in_front_of_a_surface_in_shadow(light):
     ref = reference(scene)
     black = np.all(ref == 0, axis=-1)
     assert 0.3 < black.mean() < 0.9           # the plate's pixels, and lit fog around it
-    img, integ = render(scene, "epipolar_tree")
+    img, res = render(scene, "epipolar_tree")
     assert img[black].max() < 1e-4 * ref.max()
     assert normalised_relmse(img, ref) < 1e-3
     # no float32 residue of the sweep either (epipolar_setup.flush_sweep_residue):
     # what the reference renders black is black
     assert np.mean(img[black] == 0) > 0.99, np.mean(img[black] == 0)
     # only the queries whose last interval is uncertain trace a shadow ray
-    assert 0 < integ.last_interval_traced < 0.75 * integ.query_count
+    assert 0 < res.stats["last_interval_traced"] < 0.75 * res.stats["query_count"]
 
 
 @pytest.mark.parametrize("light", [None, point_light([0.3, 2.0, 0.4])])

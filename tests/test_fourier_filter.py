@@ -118,10 +118,10 @@ def test_default_settings_are_close(weights):
     """Measured with the defaults on the on-screen epipole scene: average
     2.2e-4, reference_ray 1.8e-4, exact 1.8e-4 (epipolar_tree: 2.5e-4)."""
     sc = scene(name="on_screen")
-    img, integ = render(sc, "fourier_filter", weights=weights)
+    img, res = render(sc, "fourier_filter", weights=weights)
     assert normalised_relmse(img, reference(sc)) < 5e-4
     for stage in ("rectify", "blockers", "svd", "prefilter", "evaluate", "unrectify", "ring"):
-        assert stage in integ.timings
+        assert stage in res.timings
 
 
 def test_full_depth_range_is_worse_than_the_slice_range():
@@ -246,10 +246,10 @@ def test_local_default_settings_are_close(name, weights):
     spot_headlight 4.3e-4 / 2.2e-4 / 1.4e-4 (average / reference_ray /
     exact; epipolar_tree's bound: 3e-3)."""
     sc = scene(name=name)
-    img, integ = render(sc, "fourier_filter", weights=weights)
+    img, res = render(sc, "fourier_filter", weights=weights)
     assert normalised_relmse(img, reference(sc)) < 3e-3
     for stage in ("rectify", "blockers", "svd", "prefilter", "evaluate", "unrectify", "ring"):
-        assert stage in integ.timings
+        assert stage in res.timings
 
 
 @pytest.mark.parametrize("name", ["point_above", "spot"])
@@ -295,10 +295,10 @@ def test_unshadowed_medium_matches_the_closed_form(weights, rectification):
     sc = mi.load_dict(scene_dict(surface=0.0, blocker=None, floor=None, res=res,
                                  sigma_t={"type": "rgb", "value": [0.1, 0.3, 0.9]}))
     p = SceneParams.from_scene(sc)
-    out, integ = render(sc, "fourier_filter", weights=weights, slices=400, light_rays=512,
+    out, res = render(sc, "fourier_filter", weights=weights, slices=400, light_rays=512,
                         svd_tolerance=1e-6, rectification=rectification)
-    assert integ.rectification_used == rectification
-    assert integ.timings.get("prefilter", 0.0) < 0.05       # no filter ran
+    assert res.stats["rectification_used"] == rectification
+    assert res.timings.get("prefilter", 0.0) < 0.05       # no filter ran
     expected = unshadowed_directional(p, res, samples=20000)
     np.testing.assert_allclose(out, expected, rtol=2e-3)
 
@@ -638,8 +638,8 @@ def test_projective_converges_like_epipolar(name):
     for rect in ("projective", "epipolar"):
         errors[rect] = []
         for s in SETTINGS:
-            img, integ = render(sc, "fourier_filter", weights="exact", rectification=rect, **s)
-            assert np.all(np.isfinite(img)) and integ.rectification_used == rect
+            img, res = render(sc, "fourier_filter", weights="exact", rectification=rect, **s)
+            assert np.all(np.isfinite(img)) and res.stats["rectification_used"] == rect
             errors[rect].append(normalised_relmse(img, ref))
     p, e = errors["projective"], errors["epipolar"]
     assert p[2] < p[1] < p[0] and p[2] < 5e-5, errors
@@ -657,8 +657,8 @@ def test_projective_on_the_nave(weights):
     ref = reference(sc)
     err = {}
     for rect in ("projective", "epipolar"):
-        img, integ = render(sc, "fourier_filter", weights=weights, rectification=rect)
-        assert np.all(np.isfinite(img)) and integ.rectification_used == rect
+        img, res = render(sc, "fourier_filter", weights=weights, rectification=rect)
+        assert np.all(np.isfinite(img)) and res.stats["rectification_used"] == rect
         err[rect] = normalised_relmse(img, ref)
     assert err["projective"] < 1.5 * err["epipolar"], err
 
@@ -708,10 +708,10 @@ def test_auto_takes_projective_only_far_off_screen():
              (far, {"projective_min_angle": 60.0}, "epipolar"),
              (near, {"rectification": "projective"}, "projective")]   # asked for: ≥ 5° will do
     for sc, kw, expected in cases:
-        _, integ = render(sc, "fourier_filter", **kw)
-        assert integ.rectification_used == expected, (kw, expected)
-    _, integ = render(far, "fourier_filter", rectification="epipolar")
-    assert integ.rectification_used == "epipolar"
+        _, res = render(sc, "fourier_filter", **kw)
+        assert res.stats["rectification_used"] == expected, (kw, expected)
+    _, res = render(far, "fourier_filter", rectification="epipolar")
+    assert res.stats["rectification_used"] == "epipolar"
 
 
 @pytest.mark.parametrize("name,match", [
@@ -754,9 +754,9 @@ def test_slice_interpolation_lowers_the_error(rectification):
     ref = reference(sc)
     errors = {}
     for interpolate in (False, True):
-        img, integ = render(sc, "fourier_filter", coefficients=128, slices=24, light_rays=256,
+        img, res = render(sc, "fourier_filter", coefficients=128, slices=24, light_rays=256,
                             weights="exact", rectification=rectification,
                             slice_interpolation=interpolate)
-        assert integ.rectification_used == rectification
+        assert res.stats["rectification_used"] == rectification
         errors[interpolate] = normalised_relmse(img, ref)
     assert errors[True] < 0.8 * errors[False], errors

@@ -1,0 +1,71 @@
+"""Partial renders (the template's ``samples`` mask): only the (widened)
+samples are computed, they equal the full render's (to float rounding), the
+others are 0, and ``RenderResult.samples`` says which were computed."""
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from tests.conftest import scene_dict
+
+RES = (20, 15)
+CASES = [("raymarch", {"steps": 64, "shadowmap_resolution": 256}, 1),
+         ("raymarch", {"visibility": "exact", "steps": 32, "jitter": True}, 2),
+         ("epipolar_tree", {}, 1), ("fourier_filter", {}, 1)]
+
+
+def mask_of(n: int, fraction: float, seed: int = 1) -> np.ndarray:
+    return np.random.default_rng(seed).random(n) < fraction
+
+
+@pytest.mark.parametrize("light", ["directional", "spot"])
+@pytest.mark.parametrize("kind,props,spp", CASES, ids=lambda v: str(v))
+def test_masked_render_equals_full_render_on_computed_samples(kind, props, spp, light):
+    scene = mi.load_dict(scene_dict(light=light, res=RES))
+    integ = mi.load_dict({"type": kind, **props})
+    full = integ.render_layers(scene, spp=spp)
+    n = RES[0] * RES[1] * spp
+    part = integ.render_layers(scene, spp=spp, samples=mask_of(n, 0.3))
+    computed = np.array(part.samples, dtype=bool)
+    assert computed.shape == (n,) and computed[mask_of(n, 0.3)].all()
+    if kind == "raymarch":                      # per-sample: exactly the mask
+        assert np.array_equal(computed, mask_of(n, 0.3))
+    per_pixel = computed.reshape(-1, spp)
+    whole, none = per_pixel.all(axis=1), ~per_pixel.any(axis=1)
+    for layer in ("full", "scattering", "surface", "distance"):
+        a = np.array(full[layer]).reshape(-1, np.array(full[layer]).shape[-1])
+        b = np.array(part[layer]).reshape(a.shape)
+        np.testing.assert_allclose(b[whole], a[whole], rtol=1e-6, atol=1e-7 * a.max())
+        assert np.all(b[none] == 0), layer
+
+
+@pytest.mark.parametrize("kind", ["raymarch", "epipolar_tree", "fourier_filter"])
+def test_empty_mask_computes_nothing(kind):
+    scene = mi.load_dict(scene_dict(res=(8, 6)))
+    part = mi.load_dict({"type": kind}).render_layers(scene, samples=np.zeros(48, bool))
+    assert not np.any(np.array(part.samples)) and not np.any(np.array(part["full"]))
+
+
+def test_bad_masks_name_the_fix():
+    scene = mi.load_dict(scene_dict(res=(8, 6)))
+    integ = mi.load_dict({"type": "raymarch", "steps": 4})
+    with pytest.raises(ValueError, match="48 camera samples"):
+        integ.render_layers(scene, samples=np.ones(47, bool))
+    with pytest.raises(ValueError, match="boolean mask"):
+        integ.render_layers(scene, samples=np.ones(48))
+
+
+def test_render_state_lives_in_the_result():
+    """Nothing about a render is kept on the integrator: two renders'
+    results keep their own timings and stats."""
+    scene = mi.load_dict(scene_dict(res=(8, 6)))
+    integ = mi.load_dict({"type": "epipolar_tree"})
+    a = integ.render_layers(scene)
+    b = integ.render_layers(scene, samples=np.zeros(48, bool))
+    assert "sweep" in a.timings and a.stats["query_count"] > 0 and "query_count" not in b.stats
+    for name in ("timings", "render_seed", "last_interval_traced", "query_count",
+                 "rectification_used"):
+        assert not hasattr(integ, name), name
+    with pytest.raises(RuntimeError, match="no render is in progress"):
+        integ.record(x=1)
