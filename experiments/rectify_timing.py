@@ -45,7 +45,6 @@ import math
 import os
 import subprocess
 import time
-from contextlib import contextmanager
 
 import drjit as dr
 import mitsuba as mi
@@ -65,28 +64,6 @@ PAPER = {"complexity": "rectification O(sr) (camera depth map) + O(sd) (shadow m
 # The probe: epipolar_tree stopped after its blockers stage
 # --------------------------------------------------------------------------
 
-class _Stop(Exception):
-    pass
-
-
-@contextmanager
-def _stop_at_svd():
-    """Make epipolar_tree's ``separated_kernel`` (the first call of the
-    ``svd`` stage) raise :class:`_Stop`."""
-    from integrators import epipolar_tree as et
-
-    original = et.separated_kernel
-
-    def stop(*args, **kwargs):
-        raise _Stop
-
-    et.separated_kernel = stop
-    try:
-        yield
-    finally:
-        et.separated_kernel = original
-
-
 def _register_probe():
     from integrators.epipolar_tree import EpipolarTreeIntegrator
 
@@ -94,53 +71,40 @@ def _register_probe():
         """``epipolar_tree`` that records its problem size (``self.sizes``),
         times the shadow-map construction inside ``blockers`` as the extra
         stage ``map_build`` and, with ``stop_after_blockers`` (default
-        true), returns zero scattering right after the ``blockers`` stage."""
+        true), returns zero scattering right after the ``blockers`` stage.
+        It overrides the tree's stage methods (same code, same timers)."""
 
         def read_properties(self, props):
             self.stop_after_blockers = bool(props.get("stop_after_blockers", True))
             super().read_properties(props)
             self.sizes = {}
 
+        def light_side(self, params, cap, q, model):
+            side = super().light_side(params, cap, q, model)
+            self.sizes = {"s": int(q.n), "queries": int(q.count), "r_pad": int(q.r),
+                          "d": int(side.rays.d), "k": int(self.prefilter),
+                          "ring": int(dr.width(q.ring_sample)),
+                          "slices_total": int(q.slices.count)}
+            return side
+
+        def shadow_map(self, params, cap):
+            """The shadow-map construction, timed as its own stage
+            ``map_build`` (pending work is flushed first so that it is not
+            counted)."""
+            dr.eval()
+            dr.sync_thread()
+            with self.stage("map_build") as keep:
+                sm = super().shadow_map(params, cap)
+                keep.append(sm.depth)
+            return sm
+
         def sweep_queries(self, params, cap, queries):
-            from integrators import epipolar_setup as es
-
-            record = es.light_ray_grid
-
-            def grid(p, q, d=0):
-                rays = record(p, q, d)
-                self.sizes = {"s": int(q.n), "queries": int(q.count), "r_pad": int(q.r),
-                              "d": int(rays.d), "k": int(self.prefilter),
-                              "ring": int(dr.width(q.ring_sample)),
-                              "slices_total": int(q.slices.count)}
-                return rays
-
-            from integrators import epipolar_tree as et
-            build = et.capture_shadow_map
-
-            def timed_build(*args, **kwargs):
-                """The shadow-map construction, timed as its own stage
-                ``map_build`` (pending work is flushed first so that it is
-                not counted)."""
-                dr.eval()
-                dr.sync_thread()
-                with self.stage("map_build") as keep:
-                    sm = build(*args, **kwargs)
-                    keep.append(sm.depth)
-                return sm
-
-            et.light_ray_grid = grid
-            et.capture_shadow_map = timed_build
-            try:
-                if not self.stop_after_blockers:
-                    return super().sweep_queries(params, cap, queries)
-                with _stop_at_svd():
-                    try:
-                        return super().sweep_queries(params, cap, queries)
-                    except _Stop:
-                        return dr.zeros(mi.Color3f, queries.count)
-            finally:
-                et.light_ray_grid = record
-                et.capture_shadow_map = build
+            if not self.stop_after_blockers:
+                return super().sweep_queries(params, cap, queries)
+            from integrators.light_models import light_model
+            side = self.light_side(params, cap, queries, light_model(params))
+            self.blocker_stage(params, cap, queries, side)
+            return dr.zeros(mi.Color3f, queries.count)
 
     mi.register_integrator(PROBE, lambda props: RectifyProbe(props))
 

@@ -8,24 +8,30 @@ partial-sum tree).  The shared rectified maps live in
 """
 from __future__ import annotations
 
-import drjit as dr
+from dataclasses import dataclass
+
 import mitsuba as mi
 
 from .capture import capture_shadow_map
-from .epipolar_local_light import (light_ray_factor, local_light_ray_grid, local_query_terms,
-                                   local_separated_kernel, shadow_map_local_blocker_angles,
-                                   trace_local_blocker_angles)
-from .epipolar_setup import (assemble_queries, blocker_modes, directional_query_terms,
-                             first_leaf_visibility, gather_queries,
-                             last_interval_correction, last_interval_visibility,
-                             light_ray_grid, light_side_factor,
-                             rectified_depth,
-                             shadow_map_blocker_angles, sweep_magnitude,
-                             trace_sub_ray_blockers)
-from .kernel_separation import separated_kernel
+from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibility,
+                             gather_queries, last_interval_correction, last_interval_visibility,
+                             rectified_depth, sweep_magnitude)
+from .light_models import light_model
 from .partial_sum_tree import integrate_slices
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
+
+
+@dataclass(frozen=True, eq=False)
+class LightSide:
+    """What the ``rectify`` stage leaves for the blockers and the sweep:
+    the light rays, L per light ray, the light's colour when L is grey
+    (else None), the light rays that carry light (None: all), and D."""
+    rays: object
+    L: mi.TensorXf
+    colour: object
+    lit: object
+    D: mi.TensorXf
 
 
 class EpipolarTreeIntegrator(EpipolarIntegrator):
@@ -169,28 +175,17 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         inside the ``unrectify`` stage); the render's
         ``stats["last_interval_traced"]``: how many of its
         ``stats["query_count"]`` queries traced them."""
-        local = params.light.kind != "directional"
-        with self.stage("rectify") as keep:
-            if local:
-                t_end_max = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
-                rays = local_light_ray_grid(params, queries, self.light_rays, t_end_max)
-                L, colour, lit = light_ray_factor(params, queries, rays, self.prefilter)
-            else:
-                rays = light_ray_grid(params, queries, self.light_rays)
-                L, colour, lit = light_side_factor(params, queries, rays), None, None
-            D = rectified_depth(queries, rays)
-            keep.extend([D.array, L.array])
-        with self.stage("blockers") as keep:
-            beta_b = self.blocker_angles(params, cap, queries, rays, lit)
-            modes = blocker_modes(queries, rays, beta_b, self.prefilter)
-            keep.extend([modes.beta, modes.weight])
+        model = light_model(params)
+        side = self.light_side(params, cap, queries, model)
+        modes = self.blocker_stage(params, cap, queries, side)
         with self.stage("svd") as keep:
-            separate = local_separated_kernel if local else separated_kernel
-            A, B = separate(params, queries, rays, self.svd_rank, self.svd_tolerance)
+            A, B = model.separated_kernel(params, queries, side.rays, self.svd_rank,
+                                          self.svd_tolerance)
             keep.extend([A, B])
+        rays, L, D = side.rays, side.L, side.D
         with self.stage("sweep") as keep:
             integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count),
-                                        d_count=mi.Int32(rays.d_count) if local else None)
+                                        d_count=mi.Int32(rays.d_count) if model.local else None)
             keep.append(integral)
         with self.stage("unrectify") as keep:
             # the last, partial light-ray interval of each query: ray-traced
@@ -200,8 +195,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             last = last_interval_visibility(params, cap, queries, rays, modes, D,
                                             self.prefilter)
             V0 = first_leaf_visibility(queries, modes, last)
-            terms = (local_query_terms(params, cap, queries, rays, colour, V0) if local
-                     else directional_query_terms(params, cap, queries, rays, V0))
+            terms = model.query_terms(params, cap, queries, rays, side.colour, V0)
             terms.last = last_interval_correction(queries, A, B, L, last)
             terms.magnitude = sweep_magnitude(queries, A, B, L)
             value = assemble_queries(terms, gather_queries(queries, integral))
@@ -209,20 +203,38 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         self.record(last_interval_traced=last.traced, query_count=queries.count)
         return value
 
+    # -- stages (each timed; an experiment may call or override them) -------------
+    def light_side(self, params, cap, queries, model) -> "LightSide":
+        """Stage ``rectify`` (after the queries): the light rays of every
+        slice, the per-light-ray factor L (§6) and the rectified depth D."""
+        with self.stage("rectify") as keep:
+            rays = model.light_rays(params, queries, self.light_rays, cap)
+            L, colour, lit = model.light_factor(params, queries, rays, self.prefilter)
+            D = rectified_depth(queries, rays)
+            keep.extend([D.array, L.array])
+        return LightSide(rays, L, colour, lit, D)
+
+    def blocker_stage(self, params, cap, queries, side: "LightSide"):
+        """Stage ``blockers``: the blocker map S and its §7 depth modes."""
+        with self.stage("blockers") as keep:
+            beta_b = self.blocker_angles(params, cap, queries, side.rays, side.lit)
+            modes = blocker_modes(queries, side.rays, beta_b, self.prefilter)
+            keep.extend([modes.beta, modes.weight])
+        return modes
+
     def blocker_angles(self, params, cap, queries, rays, lit=None):
         """The blocker map S (§3, §7 sub-rays): traced with Mitsuba, or read
         from a classic shadow map (``rectification="resampled"``)."""
-        local = params.light.kind != "directional"
+        model = light_model(params)
         if self.rectification == "traced":
-            if local:
-                return trace_local_blocker_angles(params, queries, rays, self.prefilter, lit=lit)
-            return trace_sub_ray_blockers(params, queries, rays, self.prefilter,
+            return model.sub_ray_blockers(params, queries, rays, self.prefilter, lit=lit,
                                           adaptive=self.adaptive_prefilter)
-        shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        if local:
-            return shadow_map_local_blocker_angles(params, queries, rays, shadow_map,
-                                                   self.prefilter)
-        return shadow_map_blocker_angles(params, queries, rays, shadow_map, self.prefilter)
+        shadow_map = self.shadow_map(params, cap)
+        return model.resample_blockers(params, queries, rays, shadow_map, self.prefilter)
+
+    def shadow_map(self, params, cap):
+        """The classic shadow map of ``rectification="resampled"``."""
+        return capture_shadow_map(params, cap, self.shadowmap_resolution)
 
     def to_string(self):
         return (f"EpipolarTreeIntegrator[slices={self.slices}, light_rays={self.light_rays}, "

@@ -27,14 +27,11 @@ from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, 
                                 projective_rectification, projective_rows)
 
 from .capture import capture_shadow_map
-from .epipolar_local_light import (light_ray_factor, local_kernel, local_light_ray_grid,
-                                   local_query_terms, local_separated_kernel, query_x_max,
-                                   shadow_map_local_blocker_angles, trace_local_blocker_angles)
-from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
-                             directional_query_terms, epipolar_frame_of, light_ray_grid,
-                             light_side_factor, shadow_map_blocker_angles,
-                             trace_blocker_angles)
+from .epipolar_local_light import local_kernel, query_x_max
+from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, epipolar_frame_of,
+                             shadow_map_blocker_angles, trace_blocker_angles)
 from .kernel_separation import separated_kernel
+from .light_models import light_model
 from .fourier_basis import check_M, region_length
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,
@@ -357,10 +354,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             V_near = near_visibility(queries, rect.rays, rect.beta_b)
             if plan is not None:
                 terms = projective_query_terms(params, cap, queries, rect.rays, V_near)
-            elif is_local(params):
-                terms = local_query_terms(params, cap, queries, rect.rays, rect.colour, V_near)
             else:
-                terms = directional_query_terms(params, cap, queries, rect.rays, V_near)
+                terms = light_model(params).query_terms(params, cap, queries, rect.rays,
+                                                        rect.colour, V_near)
             value = assemble_queries(terms, rect.integral())
             keep.append(value)
         return value
@@ -368,18 +364,14 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     def rectified_sums(self, params, cap, queries, plan=None) -> "RectifiedSums":
         """Σ_γ L K V cover per query and colour channel, as the unshadowed
         sum U times the effective visibility V̄ (class doc)."""
-        local = is_local(params)
+        model = light_model(params)
         with self.stage("rectify"):
             d = self.light_rays or auto_texels(params, queries, cap)
             if plan is not None:    # Klehm §4.2: texels of equal steps in 1/x
                 rays = self.projective_rays(params, queries, plan, d)
-                L, colour, lit = light_side_factor(params, queries, rays), None, None
-            elif local:   # Baran §9: γ = angle at the light, Klehm §3.2 angular weights
-                rays = local_light_ray_grid(params, queries, d)
-                L, colour, lit = light_ray_factor(params, queries, rays)
-            else:
-                rays = light_ray_grid(params, queries, d)
-                L, colour, lit = light_side_factor(params, queries, rays), None, None
+            else:   # local lights: Baran §9, γ = angle at the light (Klehm §3.2)
+                rays = model.light_rays(params, queries, d)
+            L, colour, lit = model.light_factor(params, queries, rays)
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)
@@ -391,8 +383,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 A, B = texel_separated_kernel(separated_kernel, params, queries, rays,
                                               self.svd_rank, self.svd_tolerance)
             else:
-                separate = local_separated_kernel if local else separated_kernel
-                A, B = separate(params, queries, rays, self.svd_rank, self.svd_tolerance)
+                A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
+                                              self.svd_tolerance)
             keep.extend([A, B])
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V = [], []
@@ -409,7 +401,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         from the light, or read from a classic shadow map (orthographic,
         perspective or cube by light kind); ``lit``: the local light's
         texels that carry light (the others are not traced)."""
-        local = is_local(params)
+        model = light_model(params)
         if isinstance(rays, ProjectiveLightRays):      # one light ray per texel centre
             if self.blockers == "traced":
                 return texel_blocker_angles(trace_blocker_angles, params, queries, rays, 1)
@@ -417,12 +409,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             return texel_blocker_angles(shadow_map_blocker_angles, params, queries, rays,
                                         shadow_map, 1)
         if self.blockers == "traced":
-            if local:
-                return trace_local_blocker_angles(params, queries, rays, 1, lit=lit)
-            return trace_blocker_angles(params, queries, rays, 1)
+            return model.trace_blockers(params, queries, rays, 1, lit=lit)
         shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        read = shadow_map_local_blocker_angles if local else shadow_map_blocker_angles
-        return read(params, queries, rays, shadow_map, 1)
+        return model.resample_blockers(params, queries, rays, shadow_map, 1)
 
     def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
@@ -539,10 +528,7 @@ def auto_texels(params, queries, cap) -> int:
     γ_max (directional), the longest camera path (point/spot, as
     ``epipolar_tree``)."""
     cam = params.camera
-    if is_local(params):
-        length = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
-    else:
-        length = float(dr.max(queries.gamma_end)[0])
+    length = light_model(params).light_length(params, queries, cap)
     d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)), length)
     return max(d, min(TEXEL_FACTOR * d, MAX_AUTO_TEXELS))
 

@@ -1,0 +1,153 @@
+"""Light models: every difference between a directional light and a
+point/spot light in the epipolar pipeline, behind one interface (DESIGN §3).
+
+The epipolar methods (``epipolar_tree``, ``fourier_filter``) call the stages
+of :class:`LightModel` and never branch on the light kind:
+
+=========================  ==================================================
+stage                      directional (Baran §3–§7) / point, spot (§9)
+=========================  ==================================================
+``light_rays``             parallel light rays per slice, γ = distance from
+                           the camera–light axis / rays from the light, γ =
+                           angle at the light (``epipolar_setup.light_ray_grid``
+                           / ``epipolar_local_light.local_light_ray_grid``)
+``light_factor``           L(γ) = e^{-σt (h − h_ref)} / intensity, fall-off,
+                           texture and e^{-σt r} per light ray (§6 "textured
+                           light"; ``light_side_factor`` / ``light_ray_factor``)
+``trace_blockers``         blocker angle per (sub-)ray traced with Mitsuba
+``sub_ray_blockers``       the tree's §7 sub-rays (directional: adaptive)
+``resample_blockers``      blockers read from an orthographic / perspective or
+                           cube shadow map
+``separated_kernel``       Eq. 4: K = e^{-σt γ tan(β/2)} (``kernel_separation``)
+                           / the §9 kernel (``local_separated_kernel``)
+``query_terms``            per-query factors (1/sin β, phase, σs, radiance)
+``light_length``           the length whose mean free paths set the default
+                           light-ray count
+=========================  ==================================================
+
+:func:`light_model` picks the model of a scene's light.
+"""
+from __future__ import annotations
+
+import drjit as dr
+
+from .epipolar_local_light import (light_ray_factor, local_light_ray_grid, local_query_terms,
+                                   local_separated_kernel, shadow_map_local_blocker_angles,
+                                   trace_local_blocker_angles)
+from .epipolar_setup import (directional_query_terms, light_ray_grid, light_side_factor,
+                             shadow_map_blocker_angles, trace_blocker_angles,
+                             trace_sub_ray_blockers)
+from .kernel_separation import separated_kernel
+
+
+class LightModel:
+    """The light-kind stages of the epipolar pipeline (module doc)."""
+
+    #: ``params.light.kind`` values this model serves
+    KINDS: tuple = ()
+    #: whether the light rays start at the light (point/spot) rather than
+    #: running parallel to its direction
+    local = False
+
+    def light_length(self, params, queries, cap) -> float:
+        """Length over which the medium's mean free paths are counted."""
+        raise NotImplementedError
+
+    def light_rays(self, params, queries, d: int, cap=None):
+        """``d`` light rays per row (0: automatic); ``cap``: the camera
+        capture when the rays must reach its farthest sample."""
+        raise NotImplementedError
+
+    def light_factor(self, params, queries, rays, k: int = 1):
+        """(L, colour, lit): the per-light-ray factor, the light's colour when
+        L is grey (else None) and the light rays that carry light (None: all)."""
+        raise NotImplementedError
+
+    def trace_blockers(self, params, queries, rays, k: int = 1, lit=None):
+        """Blocker angle of ``k`` sub-rays per light ray, traced."""
+        raise NotImplementedError
+
+    def sub_ray_blockers(self, params, queries, rays, k: int, lit=None, adaptive=True):
+        """The tree's §7 sub-ray blockers (default: :meth:`trace_blockers`)."""
+        return self.trace_blockers(params, queries, rays, k, lit=lit)
+
+    def resample_blockers(self, params, queries, rays, shadow_map, k: int = 1):
+        """Blocker angle of ``k`` sub-rays per light ray from a shadow map."""
+        raise NotImplementedError
+
+    def separated_kernel(self, params, queries, rays, rank: int, tol: float):
+        """(A, B): the separated kernel at the light rays and the queries."""
+        raise NotImplementedError
+
+    def query_terms(self, params, cap, queries, rays, colour, V_near):
+        """Per-query factors of the integral."""
+        raise NotImplementedError
+
+
+class Directional(LightModel):
+    """A directional light (Baran §3–§7; DESIGN §1)."""
+    KINDS = ("directional",)
+
+    def light_length(self, params, queries, cap):
+        return float(dr.max(queries.gamma_end)[0])
+
+    def light_rays(self, params, queries, d, cap=None):
+        return light_ray_grid(params, queries, d)
+
+    def light_factor(self, params, queries, rays, k=1):
+        return light_side_factor(params, queries, rays), None, None
+
+    def trace_blockers(self, params, queries, rays, k=1, lit=None):
+        return trace_blocker_angles(params, queries, rays, k)
+
+    def sub_ray_blockers(self, params, queries, rays, k, lit=None, adaptive=True):
+        return trace_sub_ray_blockers(params, queries, rays, k, adaptive=adaptive)
+
+    def resample_blockers(self, params, queries, rays, shadow_map, k=1):
+        return shadow_map_blocker_angles(params, queries, rays, shadow_map, k)
+
+    def separated_kernel(self, params, queries, rays, rank, tol):
+        return separated_kernel(params, queries, rays, rank, tol)
+
+    def query_terms(self, params, cap, queries, rays, colour, V_near):
+        return directional_query_terms(params, cap, queries, rays, V_near)
+
+
+class Local(LightModel):
+    """A point or spot light (Baran §9)."""
+    KINDS = ("point", "spot")
+    local = True
+
+    def light_length(self, params, queries, cap):
+        return float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
+
+    def light_rays(self, params, queries, d, cap=None):
+        t_end_max = 0.0 if cap is None else self.light_length(params, queries, cap)
+        return local_light_ray_grid(params, queries, d, t_end_max)
+
+    def light_factor(self, params, queries, rays, k=1):
+        return light_ray_factor(params, queries, rays, k)
+
+    def trace_blockers(self, params, queries, rays, k=1, lit=None):
+        return trace_local_blocker_angles(params, queries, rays, k, lit=lit)
+
+    def resample_blockers(self, params, queries, rays, shadow_map, k=1):
+        return shadow_map_local_blocker_angles(params, queries, rays, shadow_map, k)
+
+    def separated_kernel(self, params, queries, rays, rank, tol):
+        return local_separated_kernel(params, queries, rays, rank, tol)
+
+    def query_terms(self, params, cap, queries, rays, colour, V_near):
+        return local_query_terms(params, cap, queries, rays, colour, V_near)
+
+
+MODELS = (Directional(), Local())
+
+
+def light_model(params) -> LightModel:
+    """The :class:`LightModel` of the scene's light."""
+    for model in MODELS:
+        if params.light.kind in model.KINDS:
+            return model
+    raise ValueError(f"No epipolar light model for a '{params.light.kind}' light; "
+                     "use a directional, point or spot emitter.")
