@@ -87,6 +87,8 @@ class LightModel:
 class Directional(LightModel):
     """A directional light (Baran §3–§7; DESIGN §1)."""
     KINDS = ("directional",)
+    resample_blockers = staticmethod(shadow_map_blocker_angles)
+    separated_kernel = staticmethod(separated_kernel)
 
     def light_length(self, params, queries, cap):
         return float(dr.max(queries.gamma_end)[0])
@@ -103,12 +105,6 @@ class Directional(LightModel):
     def sub_ray_blockers(self, params, queries, rays, k, lit=None, adaptive=True):
         return trace_sub_ray_blockers(params, queries, rays, k, adaptive=adaptive)
 
-    def resample_blockers(self, params, queries, rays, shadow_map, k=1):
-        return shadow_map_blocker_angles(params, queries, rays, shadow_map, k)
-
-    def separated_kernel(self, params, queries, rays, rank, tol):
-        return separated_kernel(params, queries, rays, rank, tol)
-
     def query_terms(self, params, cap, queries, rays, colour, V_near):
         return directional_query_terms(params, cap, queries, rays, V_near)
 
@@ -117,6 +113,10 @@ class Local(LightModel):
     """A point or spot light (Baran §9)."""
     KINDS = ("point", "spot")
     local = True
+    light_factor = staticmethod(light_ray_factor)
+    resample_blockers = staticmethod(shadow_map_local_blocker_angles)
+    separated_kernel = staticmethod(local_separated_kernel)
+    query_terms = staticmethod(local_query_terms)
 
     def light_length(self, params, queries, cap):
         return float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
@@ -125,20 +125,8 @@ class Local(LightModel):
         t_end_max = 0.0 if cap is None else self.light_length(params, queries, cap)
         return local_light_ray_grid(params, queries, d, t_end_max)
 
-    def light_factor(self, params, queries, rays, k=1):
-        return light_ray_factor(params, queries, rays, k)
-
     def trace_blockers(self, params, queries, rays, k=1, lit=None):
         return trace_local_blocker_angles(params, queries, rays, k, lit=lit)
-
-    def resample_blockers(self, params, queries, rays, shadow_map, k=1):
-        return shadow_map_local_blocker_angles(params, queries, rays, shadow_map, k)
-
-    def separated_kernel(self, params, queries, rays, rank, tol):
-        return local_separated_kernel(params, queries, rays, rank, tol)
-
-    def query_terms(self, params, cap, queries, rays, colour, V_near):
-        return local_query_terms(params, cap, queries, rays, colour, V_near)
 
 
 MODELS = (Directional(), Local())
