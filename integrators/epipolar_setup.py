@@ -89,7 +89,7 @@ host-side tables.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import drjit as dr
@@ -1076,20 +1076,10 @@ def gather_queries(queries: EpipolarQueries, result: mi.TensorXf) -> mi.Color3f:
     return mi.Color3f(*(dr.gather(mi.Float, flat, slot * C + c) for c in range(C)))
 
 
-def subset_capture(cap: CameraCapture, idx: mi.UInt32) -> CameraCapture:
-    """The camera samples ``idx`` of ``cap`` as a capture of their own."""
-    def g(t, v):
-        return dr.gather(t, v, idx)
-    return replace(cap, pixel=g(mi.UInt32, cap.pixel), o=g(mi.Point3f, cap.o),
-                   omega=g(mi.Vector3f, cap.omega), d=g(mi.Float, cap.d),
-                   T_cam=g(mi.Color3f, cap.T_cam), L_surface=g(mi.Color3f, cap.L_surface),
-                   hit=g(mi.Bool, cap.hit))
-
-
 def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int) -> mi.Color3f:
     """Brute-force L_scat of the ring samples (§6): raymarch with exact,
     ray-traced visibility."""
-    return march(params, subset_capture(cap, queries.ring_sample), steps, shadow_map=None,
+    return march(params, cap.subset(queries.ring_sample), steps, shadow_map=None,
                  spacing=auto_spacing(params))
 
 
