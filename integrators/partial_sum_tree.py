@@ -102,14 +102,26 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-if mi.variant() is None:
-    mi.set_variant("llvm_ad_rgb")
+class _VariantTypes:
+    """The active variant's Dr.Jit types without AD (the kernels are not
+    differentiated), looked up at every use: nothing about the variant is
+    bound when the module is imported."""
 
-#: Dr.Jit types of the active variant, without AD (the kernels are not
-#: differentiated).
-Float = dr.detached_t(mi.Float)
-Int = dr.detached_t(mi.Int32)
-TensorXf = dr.detached_t(mi.TensorXf)
+    @property
+    def Float(self):
+        return dr.detached_t(mi.Float)
+
+    @property
+    def Int(self):
+        return dr.detached_t(mi.Int32)
+
+    @property
+    def TensorXf(self):
+        return dr.detached_t(mi.TensorXf)
+
+
+#: ``jt.Float``, ``jt.Int``, ``jt.TensorXf``: the active variant's types
+jt = _VariantTypes()
 
 #: Max. entries of one lane-local array (a hard Dr.Jit limit is 65 535).
 LOCAL_ARRAY_LIMIT = 65535
@@ -166,7 +178,7 @@ def _flat(x, dtype):
     """Flat Dr.Jit array (``Float`` or ``Int``) of a NumPy array/Dr.Jit tensor."""
     if dr.is_array_v(x):
         return dtype(dr.detach(x.array if dr.is_tensor_v(x) else x))
-    np_type = np.float32 if dtype is Float else np.int32
+    np_type = np.float32 if dtype is jt.Float else np.int32
     return dtype(np.ascontiguousarray(np.asarray(x), dtype=np_type).ravel())
 
 
@@ -254,8 +266,8 @@ class _Problem(_Record):
 
 def _counts(x, n, default):
     if x is None:
-        return dr.full(Int, default, n)
-    c = _flat(x, Int)
+        return dr.full(jt.Int, default, n)
+    c = _flat(x, jt.Int)
     if dr.width(c) != n:
         raise ValueError(f"per-slice counts must have length {n}")
     return dr.clip(c, 0, default)
@@ -292,23 +304,23 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     n, r, d, M = lay.n, lay.r, lay.d, lay.M
     beta_in, weight_in, _ = _split_modes(S_modes)
     r_cnt, d_cnt = _counts(r_count, n, r), _counts(d_count, n, d)
-    Df = _flat(D, Float)
+    Df = _flat(D, jt.Float)
     Df = dr.select(dr.isnan(Df), 0.0, Df)
 
     # Modes: ⌈β⌉ clamped to [0, r] (r = never), and weight 0 for modes that
     # cannot act in their slice (γ ≥ d_count, ⌈β⌉ ≥ r_count, NaN β).
-    bf = _flat(beta_in, Float)
+    bf = _flat(beta_in, jt.Float)
     bf = dr.select(dr.isnan(bf), dr.inf, bf)
-    beta = Int(dr.ceil(dr.clip(bf, 0.0, float(r))))
-    weight = dr.ones(Float, dr.width(beta)) if weight_in is None else _flat(weight_in, Float)
-    j = dr.arange(Int, n * d * M)
+    beta = jt.Int(dr.ceil(dr.clip(bf, 0.0, float(r))))
+    weight = dr.ones(jt.Float, dr.width(beta)) if weight_in is None else _flat(weight_in, jt.Float)
+    j = dr.arange(jt.Int, n * d * M)
     s, g = j // (d * M), (j // M) % d
-    acts = (g < dr.gather(Int, d_cnt, s)) & (beta < dr.gather(Int, r_cnt, s))
+    acts = (g < dr.gather(jt.Int, d_cnt, s)) & (beta < dr.gather(jt.Int, r_cnt, s))
     weight = dr.select(acts, weight, 0.0)
     beta = dr.select(weight != 0, beta, r)
-    Lf = None if L is None else _flat(L, Float)
-    return _Problem(lay, Df, beta, weight, _flat(A, Float), _flat(B, Float), Lf,
-                    r_cnt, d_cnt, dr.opaque(Int, d), dr.opaque(Int, r))
+    Lf = None if L is None else _flat(L, jt.Float)
+    return _Problem(lay, Df, beta, weight, _flat(A, jt.Float), _flat(B, jt.Float), Lf,
+                    r_cnt, d_cnt, dr.opaque(jt.Int, d), dr.opaque(jt.Int, r))
 
 
 def _components(lay: _Layout, budget_per_leaf: int):
@@ -334,9 +346,9 @@ def _leaf(p: _Problem, s, g, comps):
     rowL = s * p.d_o + g if lay.nL > 1 else g
     out = []
     for c, i in comps:
-        a = dr.gather(Float, p.A, (rowA * lay.CA + c % lay.CA) * lay.N + i)
+        a = dr.gather(jt.Float, p.A, (rowA * lay.CA + c % lay.CA) * lay.N + i)
         if p.L is not None:
-            a = a * dr.gather(Float, p.L, rowL * lay.CL + c % lay.CL)
+            a = a * dr.gather(jt.Float, p.L, rowL * lay.CL + c % lay.CL)
         out.append(a)
     return out
 
@@ -345,15 +357,15 @@ def _view_factor(p: _Problem, s, beta, comps):
     """B_i(β) of slice ``s``, view ray ``beta``."""
     lay = p.lay
     row = s * p.r_o + beta if lay.nB > 1 else beta
-    return [dr.gather(Float, p.B, (row * lay.CB + c % lay.CB) * lay.N + i)
+    return [dr.gather(jt.Float, p.B, (row * lay.CB + c % lay.CB) * lay.N + i)
             for c, i in comps]
 
 
 def _depth_split(p: _Problem, s, beta, d_s):
     """(k0, f) of Fig. 6: D clamped to [0, d_s], k0 = min(⌊D⌋, d_s − 1) ≥ 0."""
-    Dc = dr.clip(dr.gather(Float, p.D, s * p.r_o + beta), 0.0, Float(d_s))
-    k0 = dr.maximum(dr.minimum(Int(dr.floor(Dc)), d_s - 1), 0)
-    return k0, Dc - Float(k0)
+    Dc = dr.clip(dr.gather(jt.Float, p.D, s * p.r_o + beta), 0.0, jt.Float(d_s))
+    k0 = dr.maximum(dr.minimum(jt.Int(dr.floor(Dc)), d_s - 1), 0)
+    return k0, Dc - jt.Float(k0)
 
 
 def _accumulate(p: _Problem, out, s, beta, comps, q, active=True):
@@ -370,10 +382,10 @@ def _accumulate(p: _Problem, out, s, beta, comps, q, active=True):
 # Step 1: which slices need the tree
 # --------------------------------------------------------------------------
 
-def _updates_per_slice(p: _Problem) -> Int:
+def _updates_per_slice(p: _Problem) -> jt.Int:
     """Number of modes per slice that act inside the view (w ≠ 0)."""
     lay = p.lay
-    return dr.block_sum(Int(p.weight != 0), lay.d * lay.M)
+    return dr.block_sum(jt.Int(p.weight != 0), lay.d * lay.M)
 
 
 # --------------------------------------------------------------------------
@@ -393,48 +405,48 @@ class _Updates(_Record):
 @dr.syntax
 def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w_out):
     lay = p.lay
-    r_s = dr.gather(Int, p.r_count, slices)
-    d_s = dr.gather(Int, p.d_count, slices)
-    hist = dr.alloc_local(Int, hist_size)
-    r_s = dr.minimum(r_s, Int(hist_size))      # size literal: part of the kernel hash
-    b = Int(0)
+    r_s = dr.gather(jt.Int, p.r_count, slices)
+    d_s = dr.gather(jt.Int, p.d_count, slices)
+    hist = dr.alloc_local(jt.Int, hist_size)
+    r_s = dr.minimum(r_s, jt.Int(hist_size))      # size literal: part of the kernel hash
+    b = jt.Int(0)
     while b < r_s:
-        hist[b] = Int(0)
+        hist[b] = jt.Int(0)
         b += 1
-    g = Int(0)
+    g = jt.Int(0)
     while g < d_s:                       # histogram of ⌈β_m⌉
         for m in range(lay.M):
-            bm = dr.gather(Int, p.beta, (slices * p.d_o + g) * lay.M + m)
+            bm = dr.gather(jt.Int, p.beta, (slices * p.d_o + g) * lay.M + m)
             if bm < r_s:
                 hist[bm] = hist[bm] + 1
         g += 1
-    b = Int(0)
-    run = Int(begin)
+    b = jt.Int(0)
+    run = jt.Int(begin)
     while b < r_s:                       # exclusive scan → write positions
         h = hist[b]
         hist[b] = run
         run += h
         b += 1
-    g = Int(0)
+    g = jt.Int(0)
     while g < d_s:                       # stable placement
         for m in range(lay.M):
             j = (slices * p.d_o + g) * lay.M + m
-            bm = dr.gather(Int, p.beta, j)
+            bm = dr.gather(jt.Int, p.beta, j)
             if bm < r_s:
                 pos = hist[bm]
                 hist[bm] = pos + 1
                 dr.scatter(gamma_out, g, pos)
                 dr.scatter(beta_out, bm, pos)
-                dr.scatter(w_out, dr.gather(Float, p.weight, j), pos)
+                dr.scatter(w_out, dr.gather(jt.Float, p.weight, j), pos)
         g += 1
 
 
-def _termination_lists(p: _Problem, slices: Int, counts: Int) -> _Updates:
+def _termination_lists(p: _Problem, slices: jt.Int, counts: jt.Int) -> _Updates:
     begin = dr.prefix_sum(counts)
     end = begin + counts
     total = int(dr.sum(counts)[0]) if dr.width(counts) else 0
-    gamma, beta = dr.zeros(Int, max(total, 1)), dr.zeros(Int, max(total, 1))
-    weight = dr.zeros(Float, max(total, 1))
+    gamma, beta = dr.zeros(jt.Int, max(total, 1)), dr.zeros(jt.Int, max(total, 1))
+    weight = dr.zeros(jt.Float, max(total, 1))
     # Scatter targets must be real buffers before the symbolic loop: a
     # second scatter into a still-literal zeros() array in the same loop
     # body fails with "remains dirty".
@@ -469,23 +481,23 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
     "computation references variables from a loop that was optimized away"
     with Dr.Jit 1.5."""
     K = len(comps)
-    r_s = dr.gather(Int, p.r_count, slices)
-    d_s = dr.gather(Int, p.d_count, slices)
-    tree = dr.alloc_local(Float, tree_size)
-    vis = dr.alloc_local(Float, leaf_size)
+    r_s = dr.gather(jt.Int, p.r_count, slices)
+    d_s = dr.gather(jt.Int, p.d_count, slices)
+    tree = dr.alloc_local(jt.Float, tree_size)
+    vis = dr.alloc_local(jt.Float, leaf_size)
     # size literals: part of the kernel hash (Dr.Jit 1.5 omits local array sizes)
-    d_s = dr.minimum(d_s, dr.minimum(Int(leaf_size), Int(tree_size // K - 1)))
+    d_s = dr.minimum(d_s, dr.minimum(jt.Int(leaf_size), jt.Int(tree_size // K - 1)))
 
     # BUILD-TREE in O(d): leaves (and vis = 1), then each node adds itself
     # to its parent.
-    i = Int(1)
+    i = jt.Int(1)
     while i <= d_s:
-        vis[i - 1] = Float(1.0)
+        vis[i - 1] = jt.Float(1.0)
         a = _leaf(p, slices, i - 1, comps)
         for k in range(K):
             tree[_tree_index(i, k, K)] = a[k]
         i += 1
-    i = Int(1)
+    i = jt.Int(1)
     while i <= d_s:
         parent = i + (i & -i)
         if parent <= d_s:
@@ -494,15 +506,15 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
                     tree[_tree_index(parent, k, K)] + tree[_tree_index(i, k, K)])
         i += 1
 
-    beta = Int(0)
-    ptr = Int(upd.begin)
+    beta = jt.Int(0)
+    ptr = jt.Int(upd.begin)
     while beta < r_s:
         # Fractional updates of the light rays that terminate at β (§7).
         pending = ptr < upd.end
-        bm = dr.gather(Int, upd.beta, ptr, pending)
+        bm = dr.gather(jt.Int, upd.beta, ptr, pending)
         while pending & (bm <= beta):
-            g = dr.gather(Int, upd.gamma, ptr)
-            w = dr.gather(Float, upd.weight, ptr)
+            g = dr.gather(jt.Int, upd.gamma, ptr)
+            w = dr.gather(jt.Float, upd.weight, ptr)
             vis[g] = vis[g] - w
             a = _leaf(p, slices, g, comps)
             delta = [-w * a[k] for k in range(K)]
@@ -513,12 +525,12 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
                 i += i & -i
             ptr += 1
             pending = ptr < upd.end
-            bm = dr.gather(Int, upd.beta, ptr, pending)
+            bm = dr.gather(jt.Int, upd.beta, ptr, pending)
 
         # QUERY-TREE at ⌊D⌋, then the next leaf for the lerp (Fig. 6).
         k0, f = _depth_split(p, slices, beta, d_s)
-        q = [Float(0.0) for _ in range(K)]
-        i = Int(k0)
+        q = [jt.Float(0.0) for _ in range(K)]
+        i = jt.Int(k0)
         while i > 0:
             q = [q[k] + tree[_tree_index(i, k, K)] for k in range(K)]
             i = i & (i - 1)
@@ -529,7 +541,7 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
         beta += 1
 
 
-def _run_tree(p: _Problem, slices: Int, counts: Int, out: Float):
+def _run_tree(p: _Problem, slices: jt.Int, counts: jt.Int, out: jt.Float):
     upd = _termination_lists(p, slices, counts)
     leaf_size = _local_size(p.lay.d)
     per_leaf = (LOCAL_BUDGET - leaf_size) // (p.lay.d + 1)
@@ -546,21 +558,21 @@ def _run_tree(p: _Problem, slices: Int, counts: Int, out: Float):
 # Skip work: slices without blockers need no tree (closed form)
 # --------------------------------------------------------------------------
 
-def _closed_form_shared(p: _Problem, slices: Int, out: Float):
+def _closed_form_shared(p: _Problem, slices: jt.Int, out: jt.Float):
     """A shared by all slices, no L: cumulative sums of A computed once,
     gathered at D for every (slice, β) lane."""
     lay = p.lay
     comps = [(c, i) for c in range(lay.C) for i in range(lay.N)]
-    gam = dr.arange(Int, lay.d + 1)
+    gam = dr.arange(jt.Int, lay.d + 1)
     cum = [dr.prefix_sum(dr.select(gam < lay.d,
-                                   _leaf(p, Int(0), dr.minimum(gam, lay.d - 1), [ci])[0],
+                                   _leaf(p, jt.Int(0), dr.minimum(gam, lay.d - 1), [ci])[0],
                                    0.0)) for ci in comps]
-    lane = dr.arange(Int, dr.width(slices) * lay.r)
-    s = dr.gather(Int, slices, lane // p.r_o)
+    lane = dr.arange(jt.Int, dr.width(slices) * lay.r)
+    s = dr.gather(jt.Int, slices, lane // p.r_o)
     beta = lane % p.r_o
-    active = beta < dr.gather(Int, p.r_count, s)
-    k0, f = _depth_split(p, s, beta, dr.gather(Int, p.d_count, s))
-    q = [dr.lerp(dr.gather(Float, c_k, k0), dr.gather(Float, c_k, k0 + 1), f)
+    active = beta < dr.gather(jt.Int, p.r_count, s)
+    k0, f = _depth_split(p, s, beta, dr.gather(jt.Int, p.d_count, s))
+    q = [dr.lerp(dr.gather(jt.Float, c_k, k0), dr.gather(jt.Float, c_k, k0 + 1), f)
          for c_k in cum]
     _accumulate(p, out, s, beta, comps, q, active)
     dr.eval(out)
@@ -571,21 +583,21 @@ def _closed_form_local_kernel(p: _Problem, slices, comps, size, out):
     """Per-slice cumulative sums C(k) = Σ_{γ<k} a[γ] in lane-local memory,
     then out = Δγ Σ B lerp(C(k0), C(k0+1), f) for every β of the slice."""
     K = len(comps)
-    r_s = dr.gather(Int, p.r_count, slices)
-    d_s = dr.gather(Int, p.d_count, slices)
-    cum = dr.alloc_local(Float, size)
-    d_s = dr.minimum(d_s, Int(size // K - 1))  # size literal: part of the kernel hash
-    run = [Float(0.0) for _ in range(K)]
-    g = Int(0)
+    r_s = dr.gather(jt.Int, p.r_count, slices)
+    d_s = dr.gather(jt.Int, p.d_count, slices)
+    cum = dr.alloc_local(jt.Float, size)
+    d_s = dr.minimum(d_s, jt.Int(size // K - 1))  # size literal: part of the kernel hash
+    run = [jt.Float(0.0) for _ in range(K)]
+    g = jt.Int(0)
     for k in range(K):
-        cum[k] = Float(0.0)
+        cum[k] = jt.Float(0.0)
     while g < d_s:
         a = _leaf(p, slices, g, comps)
         run = [run[k] + a[k] for k in range(K)]
         for k in range(K):
             cum[(g + 1) * K + k] = run[k]
         g += 1
-    beta = Int(0)
+    beta = jt.Int(0)
     while beta < r_s:
         k0, f = _depth_split(p, slices, beta, d_s)
         k1 = dr.minimum(k0 + 1, d_s)
@@ -594,7 +606,7 @@ def _closed_form_local_kernel(p: _Problem, slices, comps, size, out):
         beta += 1
 
 
-def _run_closed_form(p: _Problem, slices: Int, out: Float):
+def _run_closed_form(p: _Problem, slices: jt.Int, out: jt.Float):
     if p.lay.nA == 1 and p.L is None:
         return _closed_form_shared(p, slices, out)
     per_leaf = LOCAL_BUDGET // (p.lay.d + 1)
@@ -611,7 +623,7 @@ def _run_closed_form(p: _Problem, slices: Int, out: Float):
 # --------------------------------------------------------------------------
 
 def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
-                     delta_gamma=1.0, skip_unblocked=True) -> TensorXf:
+                     delta_gamma=1.0, skip_unblocked=True) -> jt.TensorXf:
     """Scattered radiance of every view ray of every slice (Eq. 3, Fig. 6).
 
     Dr.Jit kernels, one lane per slice; semantics, shapes and result as in
@@ -622,19 +634,19 @@ def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
     lay = _layout(D, S_modes, A, B, L)
     shape = (lay.n, lay.r, lay.C) if lay.coloured else (lay.n, lay.r)
     if lay.n * lay.r * lay.d == 0:
-        return dr.zeros(TensorXf, shape)
+        return dr.zeros(jt.TensorXf, shape)
     p = _prepare(D, S_modes, A, B, L, r_count, d_count)
-    out = dr.zeros(Float, lay.n * lay.r * lay.C)
+    out = dr.zeros(jt.Float, lay.n * lay.r * lay.C)
     dr.make_opaque(out)                  # scatter target (see _termination_lists)
     counts = _updates_per_slice(p)
-    needs_tree = (counts > 0) if skip_unblocked else dr.full(dr.mask_t(Int), True, lay.n)
-    tree_slices = Int(dr.compress(needs_tree))
-    free_slices = Int(dr.compress(~needs_tree))
+    needs_tree = (counts > 0) if skip_unblocked else dr.full(dr.mask_t(jt.Int), True, lay.n)
+    tree_slices = jt.Int(dr.compress(needs_tree))
+    free_slices = jt.Int(dr.compress(~needs_tree))
     if dr.width(tree_slices):
-        _run_tree(p, tree_slices, dr.gather(Int, counts, tree_slices), out)
+        _run_tree(p, tree_slices, dr.gather(jt.Int, counts, tree_slices), out)
     if dr.width(free_slices):
         _run_closed_form(p, free_slices, out)
-    return TensorXf(out * Float(delta_gamma), shape)
+    return jt.TensorXf(out * jt.Float(delta_gamma), shape)
 
 
 def _reference_layout(x, n, length, has_N):
@@ -718,7 +730,7 @@ def bench_tree(n_slices=1024, d=1024, r=1024, N=3, *, repeats=3, seed=0) -> floa
 
     Inputs are uploaded first; the first (compiling) run is not timed."""
     D, S, A, B, L = random_problem(n_slices, d, r, N, seed=seed)
-    D, S, A, B, L = (TensorXf(x) for x in (D, S, A, B, L))
+    D, S, A, B, L = (jt.TensorXf(x) for x in (D, S, A, B, L))
     dr.eval(D, S, A, B, L)
     times = []
     for k in range(repeats + 1):

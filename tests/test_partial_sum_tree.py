@@ -198,7 +198,7 @@ def test_components_split_over_several_sweeps(monkeypatch):
 def test_dr_jit_inputs_equal_numpy_inputs():
     rng = np.random.default_rng(11)
     D, S, A, B, kw = random_case(rng, n=4, d=19, r=7, N=2, M=2)
-    T = pst.TensorXf
+    T = pst.jt.TensorXf
     out_np = np.array(integrate_slices(D, S, A, B, **kw))
     out_dr = integrate_slices(T(D), BlockerModes(T(S.beta), T(S.weight)), T(A), T(B),
                               L=T(kw["L"]))
