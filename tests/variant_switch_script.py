@@ -1,6 +1,6 @@
 """Run by tests/test_variants.py in a subprocess: render raymarch,
 epipolar_tree and fourier_filter in each variant of argv[1:] (in order, one
-process) against the exact marcher and print one JSON line per render."""
+process) against the exact marcher and print one line "ROW <json>" per render."""
 import json
 import sys
 
@@ -51,7 +51,7 @@ def main(variants):
                 {"type": "raymarch", "visibility": "exact", "steps": 1024})))
             for kind, props in METHODS:
                 img = np.array(mi.render(sc, integrator=mi.load_dict({"type": kind, **props})))
-                print(json.dumps({"variant": variant, "light": light, "method": kind,
+                print("ROW", json.dumps({"variant": variant, "light": light, "method": kind,
                                   "channels": int(img.shape[-1]),
                                   "finite": bool(np.all(np.isfinite(img))),
                                   "mean": float(img.mean()), "ref_mean": float(ref.mean()),
