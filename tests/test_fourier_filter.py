@@ -295,10 +295,10 @@ def test_unshadowed_medium_matches_the_closed_form(weights, rectification):
     sc = mi.load_dict(scene_dict(surface=0.0, blocker=None, floor=None, res=res,
                                  sigma_t={"type": "rgb", "value": [0.1, 0.3, 0.9]}))
     p = SceneParams.from_scene(sc)
-    out, res = render(sc, "fourier_filter", weights=weights, slices=400, light_rays=512,
-                        svd_tolerance=1e-6, rectification=rectification)
-    assert res.stats["rectification_used"] == rectification
-    assert res.timings.get("prefilter", 0.0) < 0.05       # no filter ran
+    out, result = render(sc, "fourier_filter", weights=weights, slices=400, light_rays=512,
+                         svd_tolerance=1e-6, rectification=rectification)
+    assert result.stats["rectification_used"] == rectification
+    assert result.timings.get("prefilter", 0.0) < 0.05       # no filter ran
     expected = unshadowed_directional(p, res, samples=20000)
     np.testing.assert_allclose(out, expected, rtol=2e-3)
 
