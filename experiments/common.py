@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from episcatter import bench, metrics
+from episcatter.blas import blas_threads, limit_blas_threads
 from episcatter.reference import environment as _base_environment
 from episcatter.reference import render_reference, render_rgb, unwrap_render_error
 from episcatter.scene_loading import load_scene, make_integrator
@@ -129,47 +130,8 @@ def capture_substages() -> tuple[str, ...]:
 
 
 # --------------------------------------------------------------------------
-# BLAS threads (the tree's SVD runs in NumPy)
+# BLAS threads (the tree's SVD runs in NumPy): see episcatter.blas
 # --------------------------------------------------------------------------
-
-def _openblas():
-    """(get, set) of the OpenBLAS NumPy loaded, via ctypes, or None."""
-    import ctypes
-
-    libs = {line.split()[-1] for line in open("/proc/self/maps")
-            if "openblas" in line.lower() and line.split()[-1].startswith("/")}
-    for path in sorted(libs):
-        lib = ctypes.CDLL(path)
-        for get, put in (("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
-                         ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
-                         ("openblas_get_num_threads", "openblas_set_num_threads")):
-            if hasattr(lib, get) and hasattr(lib, put):
-                return getattr(lib, get), getattr(lib, put)
-    return None
-
-
-def blas_threads() -> int | None:
-    """OpenBLAS's current thread count (None if NumPy does not use OpenBLAS)."""
-    api = _openblas()
-    return int(api[0]()) if api else None
-
-
-@contextmanager
-def limit_blas_threads(n: int):
-    """Run a block with OpenBLAS limited to ``n`` threads, then restore it
-    (a no-op without OpenBLAS).  NumPy's LAPACK is where ``epipolar_tree``
-    takes the SVD of its 64x64 kernel sample (stage ``svd``)."""
-    api = _openblas()
-    if api is None:
-        yield
-        return
-    before = int(api[0]())
-    api[1](int(n))
-    try:
-        yield
-    finally:
-        api[1](before)
-
 
 def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
                  progress: bool = False, contexts: dict | None = None,
