@@ -133,7 +133,7 @@ def capture_substages() -> tuple[str, ...]:
 # BLAS threads (the tree's SVD runs in NumPy): see episcatter.blas
 # --------------------------------------------------------------------------
 
-def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
+def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 1,
                  progress: bool = False, contexts: dict | None = None,
                  warm_up: bool = True) -> dict:
     """Warm-up + ``repeats`` interleaved timed renders of each integrator on
@@ -142,9 +142,11 @@ def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
                      repeats, spp, progress, contexts, warm_up)
 
 
-def time_jobs(jobs: dict, repeats: int = 3, spp: int = 0, progress: bool = False,
+def time_jobs(jobs: dict, repeats: int = 3, spp: int = 1, progress: bool = False,
               contexts: dict | None = None, warm_up: bool = True) -> dict:
-    """Warm-up + ``repeats`` interleaved timed renders of each job.
+    """Warm-up + ``repeats`` interleaved timed renders of each job at ``spp``
+    samples per pixel (default 1: the pixel centres of the exact working
+    reference; 0 = the scene's sampler, as Mitsuba does).
 
     ``jobs`` maps a label to ``(scene, integrator)``.  Returns, per label,
     :func:`summarize` plus ``image`` (the last render) or, if rendering

@@ -228,7 +228,7 @@ def render(scene, kind: str, props: dict):
     from episcatter.reference import render_rgb
 
     try:
-        return render_rgb(scene, c.build(kind, props)), "ok"
+        return render_rgb(scene, c.build(kind, props), spp=1), "ok"
     except Exception as exc:  # noqa: BLE001 -- recorded, the other cases go on
         return None, c.describe_error(exc)
 
