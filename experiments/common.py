@@ -35,7 +35,8 @@ import numpy as np
 from episcatter import bench, metrics
 from episcatter.blas import blas_threads, limit_blas_threads
 from episcatter.reference import environment as _base_environment
-from episcatter.reference import render_reference, render_rgb, unwrap_render_error
+from episcatter.conventions import pixel_centre_reference
+from episcatter.reference import render_rgb, unwrap_render_error
 from episcatter.scene_loading import load_scene, make_integrator
 
 #: repository root and the folder experiments write into
@@ -78,15 +79,16 @@ def exact_reference(scene_path: str, defines: dict, steps: int = REFERENCE_STEPS
     they are identical (zero noise) and sample exactly where every tested
     method does at 1 spp -- the error is the integration error alone, no
     antialiasing difference (DESIGN §2)."""
-    return render_reference(scene_path, defines, spp=2, chunk=1, kind="exact",
-                            steps=int(steps), progress=progress)
+    return pixel_centre_reference(scene_path, defines, int(steps), progress=progress)
 
 
 def reference_note(steps: int = REFERENCE_STEPS) -> str:
-    """One sentence saying what the reference is (for tables and JSON)."""
+    """One sentence saying what the reference and the error are (for tables
+    and JSON)."""
     return (f"exact working reference: raymarch visibility=exact steps={steps}, "
             "1 sample per pixel at the pixel centre (same sample positions as the tested "
-            "methods); errors after block x block averaging of both images")
+            "methods: pixel-centre convention); errors after block x block averaging of "
+            f"both images; relMSE = {metrics.eps_text(metrics.DEFAULT_EPS)}")
 
 
 # --------------------------------------------------------------------------
@@ -109,24 +111,21 @@ def _render_once(scene, integrator, spp: int):
 def summarize(first_s: float, times: list[float], stage_runs: list[dict]) -> dict:
     """Medians of the timed runs: ``time_s`` (end-to-end), ``stages``,
     ``scattering_s`` (the template's scattering stage, camera capture
-    excluded), ``scattering_net_s`` (it minus the method's own sub-stages
-    that build a visibility capture, i.e. raymarch's shadow map, see
-    :func:`capture_substages`; unlike ``episcatter.bench``, which subtracts
-    every sub-stage and would leave epipolar_tree almost nothing)."""
+    excluded), ``scattering_net_s`` (:func:`episcatter.bench.median_net_scattering`:
+    it minus the visibility captures built inside it, raymarch's shadow map)."""
     stages = bench._median_stages(stage_runs)   # median of each stage in every run
-    scattering = stages.get("scattering", math.nan)
     return {"first_run_s": first_s, "times_s": times, "time_s": statistics.median(times),
             "time_min_s": min(times), "time_max_s": max(times), "stages": stages,
-            "scattering_s": scattering,
-            "scattering_net_s": scattering - sum(stages.get(k, 0.0) for k in capture_substages()),
+            "scattering_s": stages.get("scattering", math.nan),
+            "scattering_net_s": bench.median_net_scattering(stage_runs),
             "total_s": stages.get("total", statistics.median(times))}
 
 
 def capture_substages() -> tuple[str, ...]:
     """Sub-stages of ``scattering`` that build a visibility capture which the
     papers exclude from their times (Baran §10: "do not include the time
-    taken by their construction"): raymarch's ``shadowmap``."""
-    return ("shadowmap",)
+    taken by their construction"): :data:`episcatter.bench.CAPTURE_SUBSTAGES`."""
+    return bench.CAPTURE_SUBSTAGES
 
 
 # --------------------------------------------------------------------------
@@ -223,14 +222,17 @@ def load(scene_path: str, defines: dict | None = None):
 # Errors
 # --------------------------------------------------------------------------
 
-def errors(img, ref, blocks=BLOCKS, eps: float = metrics.DEFAULT_EPS) -> dict:
+def errors(img, ref, blocks=BLOCKS, eps: float = metrics.DEFAULT_EPS,
+           eps_mode: str = metrics.DEFAULT_EPS_MODE) -> dict:
     """:func:`metrics.compare` at each block size, flattened:
-    ``relmse_b<k>``, ``flip_b<k>``, ``rmse_b<k>``, ``max_error_b<k>``,
-    ``mean_ratio_b<k>`` and ``nonfinite`` (pixels with a NaN/Inf channel)."""
+    ``relmse_b<k>`` (scale-free unless ``eps_mode="absolute"``, DESIGN §2),
+    ``flip_b<k>``, ``rmse_b<k>``, ``max_error_b<k>``,
+    ``max_error_over_peak_b<k>``, ``mean_ratio_b<k>`` and ``nonfinite``
+    (pixels with a NaN/Inf channel)."""
     out = {}
     for k in blocks:
-        c = metrics.compare(img, ref, block=k, eps=eps)
-        for key in ("relmse", "flip", "rmse", "max_error", "mean_ratio"):
+        c = metrics.compare(img, ref, block=k, eps=eps, eps_mode=eps_mode)
+        for key in ("relmse", "flip", "rmse", "max_error", "max_error_over_peak", "mean_ratio"):
             out[f"{key}_b{k}"] = c[key]
         out["nonfinite"] = c["nonfinite_test"]
     return out
