@@ -123,3 +123,18 @@ def test_render_check_is_like_for_like(cache, tmp_path, capsys):
                               str(tmp_path / "d.exr"), "--repeats", "0"], capsys)
     assert code == 0, err
     assert "4 spp, antialiased" in out and "pixel centres vs" not in out
+
+
+def test_epipolar_png_draws_slices_epipole_and_ring(tmp_path, capsys):
+    png = tmp_path / "geometry.png"
+    code, out, err = run_cli(["epipolar", os.path.join(ROOT, "scenes", "point_fog.xml"),
+                              "-D", "res_x=40", "-D", "res_y=30", "--png", str(png),
+                              "--lines", "12", "--json"], capsys)
+    assert code == 0, err
+    import json
+    drawing = json.loads(out)["drawing"]
+    assert drawing["lines"] == 12 and drawing["slices"] > 12
+    assert drawing["epipole_marked"] and drawing["ring_pixels"] > 0
+    assert png.stat().st_size > 5000
+    code, _, err = run_cli(["epipolar", SCENE, "--png", str(tmp_path / "x.exr")], capsys)
+    assert code == 2 and "must end in .png" in err
