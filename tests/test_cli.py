@@ -18,13 +18,6 @@ FAST = ["-i", "raymarch", "-p", "steps=8", "-p", "visibility=exact"]
 
 
 @pytest.fixture
-def cache(tmp_path, monkeypatch):
-    folder = tmp_path / "cache"
-    monkeypatch.setenv("EPISCATTER_CACHE", str(folder))
-    return folder
-
-
-@pytest.fixture
 def no_render(monkeypatch):
     """Fail the test if a render starts."""
     def refuse(*args, **kwargs):
