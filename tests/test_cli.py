@@ -101,7 +101,7 @@ def test_render_reports_first_and_warm_times_and_stages_sum(cache, tmp_path, cap
     line = next(s for s in out.splitlines() if "stages of the median warm run" in s)
     parts = numbers(r"\b[a-z]+ (\d+\.\d+)", line.split(":", 1)[1].split("=")[0])
     total = float(line.rsplit("=", 1)[1].split()[0])
-    assert "other" in line and abs(sum(parts) - total) <= 0.0025, line
+    assert "other" in line and abs(sum(parts) - total) <= 0.004, line
 
 
 def test_render_check_is_like_for_like(cache, tmp_path, capsys):
