@@ -1,13 +1,19 @@
 """The ``episcatter`` command line (DESIGN §4).
 
 Each subcommand lives in its own ``cmd_<name>`` module exposing
-``add_arguments(parser)`` and ``run(args) -> int``.
+``add_arguments(parser)`` and ``run(args) -> int``.  OpenBLAS is pinned to
+one thread before any subcommand imports NumPy (DESIGN §5;
+``OPENBLAS_NUM_THREADS`` set by the user wins).
 """
 from __future__ import annotations
 
-import argparse
-import importlib
-import sys
+from .blas import pin_one_thread
+
+pin_one_thread()   # before NumPy loads its BLAS (the subcommands import it)
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+import sys  # noqa: E402
 
 COMMANDS = {
     "render": "render a scene with one of our integrators (or the scene's own)",

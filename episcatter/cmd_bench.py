@@ -36,9 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="XML default, e.g. -D res_x=320 (repeatable)")
     parser.add_argument("--reference", choices=("volpath", "exact", "none"), default="exact",
                         help="reference for the errors: exact (raymarch visibility=exact, "
-                             "default), volpath (ground truth) or none")
+                             "default: at the pixel centres for 1-spp jobs, antialiased for "
+                             "the others), volpath (ground truth) or none")
     parser.add_argument("--ref-spp", type=int, default=None,
-                        help="reference samples per pixel (default: see `episcatter reference`)")
+                        help="reference samples per pixel (default: see --reference; giving "
+                             "it fixes one reference for every job)")
     parser.add_argument("--ref-chunk", type=int, default=None, help="reference spp per chunk")
     parser.add_argument("--ref-steps", type=int, default=None,
                         help=f"steps of the exact reference (default {DEFAULT_EXACT_STEPS})")
@@ -47,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="compare KxK block averages (matched footprint; default 1)")
     parser.add_argument("--eps", type=float, default=metrics.DEFAULT_EPS,
                         help="relMSE regularizer (default: %(default)g)")
+    parser.add_argument("--eps-mode", choices=metrics.EPS_MODES, default=metrics.DEFAULT_EPS_MODE,
+                        help="relative (scale-free, default): eps*mean(ref)^2; absolute: eps "
+                             "(the first sessions' numbers)")
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: results/bench/<scene stems>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -73,15 +78,21 @@ def default_out_dir(scenes) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark described by parsed ``args``; returns the exit status."""
+    metrics.check_eps(args.eps, args.eps_mode)
+    if args.repeats < 1:
+        raise ValueError(f"--repeats {args.repeats} must be >= 1.")
     out = args.out or default_out_dir(args.scenes)
     results = run_bench(args.scenes, args.integrators, sweeps=parse_sweeps(args.sweep),
                         defines=parse_assignments(args.define), reference=args.reference,
                         out_dir=out, repeats=args.repeats, params=parse_assignments(args.param),
                         block=args.block, eps=args.eps, ref_spp=args.ref_spp,
                         ref_chunk=args.ref_chunk, ref_steps=args.ref_steps,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, eps_mode=args.eps_mode)
     print(format_table(results))
-    print(f"times: median of {args.repeats} runs after a warm-up; errors: relMSE vs the "
-          f"{args.reference} reference, {args.block}x{args.block} block averages")
+    print(f"times: median of {args.repeats} runs after a warm-up (first = compile + first run); "
+          f"errors: {metrics.eps_text(args.eps, args.eps_mode)} vs the {args.reference} "
+          f"reference, {args.block}x{args.block} block averages; convention = the render's "
+          "pixel footprint / the reference's (centres = 1 spp at the pixel centres, aa = "
+          "antialiased, '!' = mismatch)")
     print(f"wrote {os.path.join(out, 'bench.csv')}, bench.json, bench.png")
     return 1 if any(r.get("error") for r in results) else 0

@@ -24,6 +24,7 @@ _TABLE_ROWS = (
     ("rmse", "RMSE"),
     ("mape", "MAPE"),
     ("max_error", "max abs error"),
+    ("max_error_over_peak", "max abs error / ref peak"),
     ("mean_ratio", "mean ratio (test/ref)"),
     ("flip", "HDR-FLIP (mean)"),
 )
@@ -38,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="average both images over KxK blocks first (default: 1)")
     parser.add_argument("--eps", type=float, default=metrics.DEFAULT_EPS, metavar="E",
                         help="regularizer of relMSE and MAPE (default: %(default)g)")
+    parser.add_argument("--eps-mode", choices=metrics.EPS_MODES, default=metrics.DEFAULT_EPS_MODE,
+                        help="relMSE regulariser: relative (scale-free, default) = "
+                             "E*mean(ref)^2, absolute = E (the first sessions' numbers)")
 
 
 def _load(path: str, role: str):
@@ -61,7 +65,9 @@ def _format_table(result: dict) -> str:
             ("block", f"{result['block']} (compared at "
                       f"{'x'.join(map(str, result['compared_shape'][1::-1]))})")]
     for key, label in _TABLE_ROWS:
-        if key in ("relmse", "mape"):
+        if key == "relmse":
+            label = f"{label} ({result['relmse_convention']})"
+        elif key == "mape":
             label = f"{label} (eps={eps:g})"
         rows.append((label, f"{result[key]:.6g}"))
     rows.append(("non-finite pixels", f"test {result['nonfinite_test']}, ref {result['nonfinite_ref']}"))
@@ -69,6 +75,10 @@ def _format_table(result: dict) -> str:
     lines = [f"{label:<{width}}  {value}" for label, value in rows]
     if result["nonfinite_test"] or result["nonfinite_ref"]:
         lines.append(f"warning: non-finite pixels excluded; metrics over {result['pixels_used']} pixels")
+    if result["nonfinite_ref"]:
+        lines.append("warning: the reference has non-finite pixels; a volpath reference of a "
+                     "medium with a zero sigma_t channel is NaN (use sigma_t > 0 in every "
+                     "channel, or the exact reference)")
     if "flip_error" in result:
         lines.append(f"warning: FLIP not computed: {result['flip_error']}")
     return "\n".join(lines)
@@ -78,8 +88,10 @@ def run(args: argparse.Namespace) -> int:
     """Run the comparison described by parsed ``args``; returns the exit status."""
     test = _load(args.test, "test")
     ref = _load(args.ref, "reference")
+    metrics.check_eps(args.eps, args.eps_mode)
     result = {"test": args.test, "ref": args.ref}
-    result.update(metrics.compare(test, ref, block=args.block, eps=args.eps))
+    result.update(metrics.compare(test, ref, block=args.block, eps=args.eps,
+                                  eps_mode=args.eps_mode))
     if args.json:
         print(json.dumps({k: _json_safe(v) for k, v in result.items()}, indent=2))
     else:

@@ -1,11 +1,13 @@
-"""``episcatter epipolar SCENE [-D name=value]... [--ring DEG] [--json]``
+"""``episcatter epipolar SCENE [-D name=value]... [--ring DEG] [--json] [--png OUT.png [--image EXR]]``
 
 Epipolar geometry of a scene's camera and light (rectify issue, point 8): the
 epipole in pixel coordinates and its case (on-screen / off-screen / at
 infinity / behind the camera), the slice counts of Baran's ``sinh``
 distribution (§8, Eq. 5) and of uniform 1-px border spacing, the largest
 distance from any pixel centre to its nearest slice line for each, and the
-number of pixels in the epipole ring (§6).
+number of pixels in the epipole ring (§6).  ``--png`` draws the slices, the
+epipole and the ring over ``--image`` (an EXR of the scene) or a quick
+preview render (:mod:`episcatter.epipolar_overlay`).
 """
 from __future__ import annotations
 
@@ -20,6 +22,18 @@ def add_arguments(p):
                    help="XML default, e.g. -D res_x=1280 (repeatable)")
     p.add_argument("--ring", type=float, default=2.0, help="epipole ring radius in degrees")
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--png", metavar="OUT.png",
+                   help="draw the slices, the epipole and the ring over the image into a PNG")
+    p.add_argument("--image", metavar="EXR",
+                   help="image to draw on (default: a quick 1-spp raymarch preview)")
+    p.add_argument("--lines", type=int, default=48, help="slice lines drawn at most (--png)")
+
+
+def light_geometry(params):
+    """(kind, direction or position) of a scene's light, as rectify takes it."""
+    light = params.light
+    return (("directional", light.direction) if light.kind == "directional"
+            else (light.kind, light.position))
 
 
 def scene_geometry(scene_path, defines=None, ring_deg=2.0) -> dict:
@@ -28,16 +42,43 @@ def scene_geometry(scene_path, defines=None, ring_deg=2.0) -> dict:
     from rectify.describe import describe
 
     params = SceneParams.from_scene(load_scene(scene_path, defines))
-    light = params.light
-    geom = (("directional", light.direction) if light.kind == "directional"
-            else (light.kind, light.position))
-    info = describe(params.camera, geom, ring_deg=ring_deg)
+    info = describe(params.camera, light_geometry(params), ring_deg=ring_deg)
     info["scene"] = scene_path
     return info
 
 
+def write_overlay(args, defines) -> dict:
+    """The ``--png`` drawing (:func:`episcatter.epipolar_overlay.draw_overlay`)."""
+    from integrators.scene_params import SceneParams
+    from rectify.epipole import epipolar_frame
+
+    from .epipolar_overlay import draw_overlay, preview_image
+    from .imageio import read_rgb
+
+    scene = load_scene(args.scene, defines)
+    params = SceneParams.from_scene(scene)
+    frame = epipolar_frame(params.camera, light_geometry(params))
+    rgb = read_rgb(args.image) if args.image else preview_image(scene)
+    if rgb.shape[:2] != (frame.height, frame.width):
+        raise ValueError(f"--image is {rgb.shape[1]}x{rgb.shape[0]} but the scene renders "
+                         f"{frame.width}x{frame.height}: pass the same -D res_x/res_y.")
+    return draw_overlay(args.png, rgb, frame, args.ring, args.lines)
+
+
 def run(args) -> int:
-    info = scene_geometry(args.scene, parse_assignments(args.define), args.ring)
+    defines = parse_assignments(args.define)
+    if args.png:
+        from .imageio import output_paths
+        if output_paths(args.png)[1] != args.png:
+            raise ValueError(f"--png '{args.png}' must end in .png.")
+    info = scene_geometry(args.scene, defines, args.ring)
+    if args.png:
+        info["drawing"] = write_overlay(args, defines)
+        if not args.json:
+            d = info["drawing"]
+            print(f"wrote {args.png}: {d['lines']} of {d['slices']} slices, epipole "
+                  f"{'marked' if d['epipole_marked'] else 'off the picture (arrow)'}, "
+                  f"ring {d['ring_pixels']} px")
     if args.json:
         print(json.dumps(info, indent=2, default=str))
         return 0

@@ -291,3 +291,21 @@ def write_png_preview(path, rgb: np.ndarray, exposure: float | str = 0.0) -> flo
     pixels = np.round(np.clip(encoded, 0.0, 1.0) * 255.0).astype(np.uint8)
     Image.fromarray(pixels).save(os.fspath(path), format="PNG")
     return scale
+
+
+def output_paths(path) -> tuple[str, str]:
+    """(EXR, PNG preview) written for an output name: ``x.exr`` -> ``x.exr``
+    + ``x.png``; ``x.png`` -> the same pair (the preview never overwrites the
+    EXR).  Checked before anything is rendered: another suffix, or a folder
+    that does not exist, is a ``ValueError`` / ``FileNotFoundError`` naming
+    the fix."""
+    path = os.fspath(path)
+    stem, ext = os.path.splitext(path)
+    if ext.lower() not in (".exr", ".png"):
+        raise ValueError(f"output '{path}' must end in .exr or .png (both the EXR and an "
+                         "sRGB PNG preview are written).")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"output folder '{folder}' does not exist: create it first "
+                                f"(mkdir -p {folder}) or write elsewhere.")
+    return stem + ".exr", stem + ".png"

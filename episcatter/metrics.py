@@ -8,10 +8,42 @@ pixel footprint (``block``), and handles non-finite pixels explicitly.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 DEFAULT_EPS = 1e-2
 """Default regularizer of :func:`relmse`, :func:`mape` and :func:`noise_relmse`."""
+
+EPS_MODES = ("relative", "absolute")
+"""How relMSE's regulariser is meant (DESIGN §2): ``relative`` = ``eps *
+mean(ref)**2`` (:func:`scale_free_relmse`, the default everywhere), or
+``absolute`` = ``eps`` itself (:func:`relmse`, the numbers of the first
+sessions)."""
+DEFAULT_EPS_MODE = "relative"
+
+
+def check_eps(eps, eps_mode: str = DEFAULT_EPS_MODE) -> float:
+    """``eps`` as a float if it is a usable relMSE regulariser, else a
+    ``ValueError`` naming the fix (``eps <= 0`` divides by zero on black
+    reference pixels; an unknown mode is not one of :data:`EPS_MODES`)."""
+    if eps_mode not in EPS_MODES:
+        raise ValueError(f"eps mode '{eps_mode}' is not one of {list(EPS_MODES)}.")
+    try:
+        value = float(eps)
+    except (TypeError, ValueError):
+        raise ValueError(f"eps = {eps!r} is not a number; use e.g. {DEFAULT_EPS:g}.") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"eps = {eps!r} must be a finite number > 0 (relMSE divides by "
+                         f"ref^2 + eps, which is 0 on black pixels); use e.g. {DEFAULT_EPS:g}.")
+    return value
+
+
+def eps_text(eps: float, eps_mode: str = DEFAULT_EPS_MODE) -> str:
+    """The relMSE convention in words, for tables and printed output."""
+    if eps_mode == "relative":
+        return f"scale-free relMSE, eps {eps:g}·mean(ref)²"
+    return f"absolute-eps relMSE, eps {eps:g}"
 
 
 def _as_float(img) -> np.ndarray:
@@ -68,9 +100,11 @@ def block_average(img, k: int) -> np.ndarray:
 # --------------------------------------------------------------------------
 
 def relmse(test, ref, eps: float = DEFAULT_EPS) -> float:
-    """Relative mean squared error, mean over pixels and channels of
-    ``(test - ref)**2 / (ref**2 + eps)``; default ``eps = 1e-2`` (added to
-    the *squared* reference, so it matters where |ref| is below ~0.1)."""
+    """Relative mean squared error with an *absolute* regulariser, mean over
+    pixels and channels of ``(test - ref)**2 / (ref**2 + eps)``; default
+    ``eps = 1e-2`` (added to the *squared* reference, so it matters where
+    |ref| is below ~0.1: for dim images it is MSE / eps, and it depends on
+    the exposure -- the default everywhere is :func:`scale_free_relmse`)."""
     test, ref = _pair(test, ref)
     return float(np.mean((test - ref) ** 2 / (ref**2 + eps)))
 
@@ -92,6 +126,25 @@ def scale_free_relmse(test, ref, eps: float = DEFAULT_EPS) -> float:
     return float(np.mean((test - ref) ** 2 / (ref**2 + floor)))
 
 
+def relmse_floor(ref, eps: float = DEFAULT_EPS, eps_mode: str = DEFAULT_EPS_MODE) -> float:
+    """The term added to ``ref**2`` in relMSE's denominator: ``eps *
+    mean(ref)**2`` (``relative``) or ``eps`` (``absolute``)."""
+    if eps_mode == "absolute":
+        return float(eps)
+    check_eps(eps, eps_mode)
+    return float(eps) * float(np.mean(_as_float(ref))) ** 2
+
+
+def relmse_by_mode(test, ref, eps: float = DEFAULT_EPS,
+                   eps_mode: str = DEFAULT_EPS_MODE) -> float:
+    """:func:`scale_free_relmse` (``relative``, the default) or
+    :func:`relmse` (``absolute``)."""
+    check_eps(eps, eps_mode)
+    if eps_mode == "absolute":
+        return relmse(test, ref, eps)
+    return scale_free_relmse(test, ref, eps)
+
+
 def rmse(test, ref) -> float:
     """Root mean squared error over pixels and channels."""
     test, ref = _pair(test, ref)
@@ -109,6 +162,14 @@ def max_error(test, ref) -> float:
     """Largest absolute per-channel difference."""
     test, ref = _pair(test, ref)
     return float(np.max(np.abs(test - ref)))
+
+
+def max_error_over_peak(test, ref) -> float:
+    """:func:`max_error` divided by the reference's largest value (scale-free,
+    DESIGN §2); NaN for an all-black (or negative) reference."""
+    test, ref = _pair(test, ref)
+    peak = float(np.max(ref))
+    return max_error(test, ref) / peak if peak > 0.0 else float("nan")
 
 
 def mean_ratio(test, ref) -> float:
@@ -176,25 +237,31 @@ def _nonfinite_pixels(img: np.ndarray) -> np.ndarray:
     return ~np.all(np.isfinite(img), axis=-1)
 
 
-def compare(test, ref, block: int = 1, eps: float = DEFAULT_EPS) -> dict:
+def compare(test, ref, block: int = 1, eps: float = DEFAULT_EPS,
+            eps_mode: str = DEFAULT_EPS_MODE) -> dict:
     """All metrics of ``test`` against ``ref`` (both (H, W, 3) linear RGB).
 
     Both images are first block-averaged with ``block`` (see
     :func:`block_average`).  Returns a dict with
 
-    - ``relmse`` (with ``eps``), ``rmse``, ``mape`` (with ``eps``),
-      ``max_error``, ``mean_ratio``: computed over the (block) pixels where
-      both images are finite;
+    - ``relmse`` (:func:`relmse_by_mode`: scale-free by default,
+      ``eps_mode="absolute"`` for the absolute form), ``rmse``, ``mape``
+      (absolute ``eps``), ``max_error``, ``max_error_over_peak``,
+      ``mean_ratio``: computed over the (block) pixels where both images
+      are finite;
     - ``flip``: mean HDR-FLIP on the block-averaged images with non-finite
       values set to 0 (NaN, with ``flip_error`` giving the reason, if FLIP
       cannot be evaluated, e.g. for an all-black reference);
     - ``nonfinite_test`` / ``nonfinite_ref``: number of full-resolution
       pixels with a NaN/Inf channel; ``pixels_used``: number of (block)
       pixels the pixel-wise metrics were computed on;
-    - ``test_shape``, ``ref_shape``, ``compared_shape``, ``block``, ``eps``.
+    - ``test_shape``, ``ref_shape``, ``compared_shape``, ``block``, ``eps``,
+      ``eps_mode`` and ``relmse_convention`` (:func:`eps_text`).
 
-    Raises ValueError if the shapes differ (naming both) or are not (H, W, 3).
+    Raises ValueError if the shapes differ (naming both) or are not (H, W, 3),
+    or if ``eps`` is not > 0 (:func:`check_eps`).
     """
+    eps = check_eps(eps, eps_mode)
     test, ref = _as_float(test), _as_float(ref)
     _check_same_shape(test, ref)
     _check_rgb(test, "test")
@@ -203,6 +270,8 @@ def compare(test, ref, block: int = 1, eps: float = DEFAULT_EPS) -> dict:
         "ref_shape": list(ref.shape),
         "block": int(block),
         "eps": float(eps),
+        "eps_mode": eps_mode,
+        "relmse_convention": eps_text(eps, eps_mode),
         "nonfinite_test": int(_nonfinite_pixels(test).sum()),
         "nonfinite_ref": int(_nonfinite_pixels(ref).sum()),
     }
@@ -213,10 +282,12 @@ def compare(test, ref, block: int = 1, eps: float = DEFAULT_EPS) -> dict:
     result["pixels_used"] = int(valid.sum())
     t, r = test_b[valid], ref_b[valid]
     if t.size:
-        result.update(relmse=relmse(t, r, eps), rmse=rmse(t, r), mape=mape(t, r, eps),
-                      max_error=max_error(t, r), mean_ratio=mean_ratio(t, r))
+        result.update(relmse=relmse_by_mode(t, r, eps, eps_mode), rmse=rmse(t, r),
+                      mape=mape(t, r, eps), max_error=max_error(t, r),
+                      max_error_over_peak=max_error_over_peak(t, r), mean_ratio=mean_ratio(t, r))
     else:
-        result.update({k: float("nan") for k in ("relmse", "rmse", "mape", "max_error", "mean_ratio")})
+        result.update({k: float("nan") for k in ("relmse", "rmse", "mape", "max_error",
+                                                  "max_error_over_peak", "mean_ratio")})
 
     try:
         result["flip"] = flip(test_b, ref_b)
@@ -226,7 +297,8 @@ def compare(test, ref, block: int = 1, eps: float = DEFAULT_EPS) -> dict:
     return result
 
 
-def noise_relmse(half_a, half_b, block: int = 1, eps: float = DEFAULT_EPS) -> float:
+def noise_relmse(half_a, half_b, block: int = 1, eps: float = DEFAULT_EPS,
+                 eps_mode: str = DEFAULT_EPS_MODE) -> float:
     """Estimate the relMSE noise level of a Monte Carlo image from two halves.
 
     ``half_a`` and ``half_b`` are two statistically independent renderings
@@ -235,8 +307,9 @@ def noise_relmse(half_a, half_b, block: int = 1, eps: float = DEFAULT_EPS) -> fl
     ``s**2``, then ``E[(a - b)**2] = 2 s**2`` while ``Var[m] = s**2 / 2``, so
     ``(a - b)**2 / 4`` is an unbiased per-pixel estimate of ``Var[m]``.  The
     return value is the mean over pixels and channels of
-    ``(a - b)**2 / 4 / (m**2 + eps)``, i.e. the expected :func:`relmse`
-    (same ``eps``, default 1e-2) of ``m`` against the noise-free image, up
+    ``(a - b)**2 / 4 / (m**2 + floor)`` with :func:`relmse_floor` of ``m``,
+    i.e. the expected :func:`relmse_by_mode` (same ``eps`` and
+    ``eps_mode``) of ``m`` against the noise-free image, up
     to the small error of using the noisy ``m`` in the denominator.  It
     measures variance only, not bias.  With ``block > 1`` both halves are
     block-averaged first, giving the noise at that pixel footprint.
@@ -245,16 +318,18 @@ def noise_relmse(half_a, half_b, block: int = 1, eps: float = DEFAULT_EPS) -> fl
     a, b = block_average(a, block), block_average(b, block)
     variance_of_mean = (a - b) ** 2 / 4.0
     mean = (a + b) / 2.0
-    return float(np.mean(variance_of_mean / (mean**2 + eps)))
+    return float(np.mean(variance_of_mean / (mean**2 + relmse_floor(mean, eps, eps_mode))))
 
 
-def noise_relmse_from_variance(mean, variance, block: int = 1, eps: float = DEFAULT_EPS) -> float:
+def noise_relmse_from_variance(mean, variance, block: int = 1, eps: float = DEFAULT_EPS,
+                               eps_mode: str = DEFAULT_EPS_MODE) -> float:
     """relMSE noise of a Monte Carlo image ``mean`` from its per-pixel
     variance-of-the-mean estimate ``variance`` (e.g. from K independent
     chunks: Σ(x_c - x̄)² / (K(K-1)), K-1 degrees of freedom instead of the
-    one of :func:`noise_relmse`).  Pixels are independent, so a k×k block's
-    variance is the block mean of the pixel variances divided by k²."""
+    one of :func:`noise_relmse`; same ``eps`` and ``eps_mode``).  Pixels are
+    independent, so a k×k block's variance is the block mean of the pixel
+    variances divided by k²."""
     m, v = _pair(mean, variance)
     m = block_average(m, block)
     v = block_average(v, block) / float(block * block)
-    return float(np.mean(v / (m**2 + eps)))
+    return float(np.mean(v / (m**2 + relmse_floor(m, eps, eps_mode))))

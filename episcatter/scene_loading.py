@@ -69,12 +69,34 @@ def make_integrator(kind: str | None, props: dict | None = None, scene=None):
             raise ValueError("-p/--param needs -i/--integrator to say which integrator.")
         if scene is None:
             raise ValueError("No integrator type given and no scene to take it from.")
+        if scene.integrator() is None:
+            raise ValueError("The scene has no <integrator>: pass one with -i TYPE "
+                             "(raymarch, epipolar_tree, fourier_filter, volpath) or add "
+                             "<integrator type=\"...\"/> to the scene file.")
         return scene.integrator()
     d = {"type": kind}
     d.update(props or {})
     if kind == "volpath" and "max_depth" not in d:
         d["max_depth"] = 2
     return mi.load_dict(d)
+
+
+def check_volpath_medium(scene) -> None:
+    """Refuse what makes Mitsuba's ``volpath`` return NaN instead of an image:
+    a sensor medium whose σt is zero in some channels but not all (volpath
+    samples free-flight distances per channel and divides by σt).  Scenes our
+    integrators do not read (no medium on the sensor, ...) are not checked."""
+    from integrators.scene_params import SceneParams
+
+    try:
+        sigma_t = SceneParams.from_scene(scene).medium.sigma_t
+    except ValueError:
+        return
+    if (sigma_t == 0).any() and (sigma_t > 0).any():
+        raise ValueError(f"Medium sigma_t = {list(map(float, sigma_t))} is zero in some "
+                         "channels: Mitsuba's volpath returns NaN for such media. Give every "
+                         "channel sigma_t > 0 (e.g. 1e-4), or use the exact working reference "
+                         "(raymarch visibility=exact: `--reference exact`, `--kind exact`).")
 
 
 def scene_key(path: str, defines: dict | None = None, extra: str = "") -> str:

@@ -33,8 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from episcatter import bench, metrics
+from episcatter.blas import blas_threads, limit_blas_threads
 from episcatter.reference import environment as _base_environment
-from episcatter.reference import render_reference, render_rgb, unwrap_render_error
+from episcatter.conventions import pixel_centre_reference
+from episcatter.reference import render_rgb, unwrap_render_error
 from episcatter.scene_loading import load_scene, make_integrator
 
 #: repository root and the folder experiments write into
@@ -77,15 +79,16 @@ def exact_reference(scene_path: str, defines: dict, steps: int = REFERENCE_STEPS
     they are identical (zero noise) and sample exactly where every tested
     method does at 1 spp -- the error is the integration error alone, no
     antialiasing difference (DESIGN §2)."""
-    return render_reference(scene_path, defines, spp=2, chunk=1, kind="exact",
-                            steps=int(steps), progress=progress)
+    return pixel_centre_reference(scene_path, defines, int(steps), progress=progress)
 
 
 def reference_note(steps: int = REFERENCE_STEPS) -> str:
-    """One sentence saying what the reference is (for tables and JSON)."""
+    """One sentence saying what the reference and the error are (for tables
+    and JSON)."""
     return (f"exact working reference: raymarch visibility=exact steps={steps}, "
             "1 sample per pixel at the pixel centre (same sample positions as the tested "
-            "methods); errors after block x block averaging of both images")
+            "methods: pixel-centre convention); errors after block x block averaging of "
+            f"both images; relMSE = {metrics.eps_text(metrics.DEFAULT_EPS)}")
 
 
 # --------------------------------------------------------------------------
@@ -108,70 +111,28 @@ def _render_once(scene, integrator, spp: int):
 def summarize(first_s: float, times: list[float], stage_runs: list[dict]) -> dict:
     """Medians of the timed runs: ``time_s`` (end-to-end), ``stages``,
     ``scattering_s`` (the template's scattering stage, camera capture
-    excluded), ``scattering_net_s`` (it minus the method's own sub-stages
-    that build a visibility capture, i.e. raymarch's shadow map, see
-    :func:`capture_substages`; unlike ``episcatter.bench``, which subtracts
-    every sub-stage and would leave epipolar_tree almost nothing)."""
+    excluded), ``scattering_net_s`` (:func:`episcatter.bench.median_net_scattering`:
+    it minus the visibility captures built inside it, raymarch's shadow map)."""
     stages = bench.median_stages(stage_runs)   # median of each stage in every run
-    scattering = stages.get("scattering", math.nan)
     return {"first_run_s": first_s, "times_s": times, "time_s": statistics.median(times),
             "time_min_s": min(times), "time_max_s": max(times), "stages": stages,
-            "scattering_s": scattering,
-            "scattering_net_s": scattering - sum(stages.get(k, 0.0) for k in capture_substages()),
+            "scattering_s": stages.get("scattering", math.nan),
+            "scattering_net_s": bench.median_net_scattering(stage_runs),
             "total_s": stages.get("total", statistics.median(times))}
 
 
 def capture_substages() -> tuple[str, ...]:
     """Sub-stages of ``scattering`` that build a visibility capture which the
     papers exclude from their times (Baran §10: "do not include the time
-    taken by their construction"): raymarch's ``shadowmap``."""
-    return ("shadowmap",)
+    taken by their construction"): :data:`episcatter.bench.CAPTURE_SUBSTAGES`."""
+    return bench.CAPTURE_SUBSTAGES
 
 
 # --------------------------------------------------------------------------
-# BLAS threads (the tree's SVD runs in NumPy)
+# BLAS threads (the tree's SVD runs in NumPy): see episcatter.blas
 # --------------------------------------------------------------------------
 
-def _openblas():
-    """(get, set) of the OpenBLAS NumPy loaded, via ctypes, or None."""
-    import ctypes
-
-    libs = {line.split()[-1] for line in open("/proc/self/maps")
-            if "openblas" in line.lower() and line.split()[-1].startswith("/")}
-    for path in sorted(libs):
-        lib = ctypes.CDLL(path)
-        for get, put in (("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
-                         ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
-                         ("openblas_get_num_threads", "openblas_set_num_threads")):
-            if hasattr(lib, get) and hasattr(lib, put):
-                return getattr(lib, get), getattr(lib, put)
-    return None
-
-
-def blas_threads() -> int | None:
-    """OpenBLAS's current thread count (None if NumPy does not use OpenBLAS)."""
-    api = _openblas()
-    return int(api[0]()) if api else None
-
-
-@contextmanager
-def limit_blas_threads(n: int):
-    """Run a block with OpenBLAS limited to ``n`` threads, then restore it
-    (a no-op without OpenBLAS).  NumPy's LAPACK is where ``epipolar_tree``
-    takes the SVD of its 64x64 kernel sample (stage ``svd``)."""
-    api = _openblas()
-    if api is None:
-        yield
-        return
-    before = int(api[0]())
-    api[1](int(n))
-    try:
-        yield
-    finally:
-        api[1](before)
-
-
-def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
+def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 1,
                  progress: bool = False, contexts: dict | None = None,
                  warm_up: bool = True) -> dict:
     """Warm-up + ``repeats`` interleaved timed renders of each integrator on
@@ -180,9 +141,11 @@ def time_renders(scene, integrators: dict, repeats: int = 3, spp: int = 0,
                      repeats, spp, progress, contexts, warm_up)
 
 
-def time_jobs(jobs: dict, repeats: int = 3, spp: int = 0, progress: bool = False,
+def time_jobs(jobs: dict, repeats: int = 3, spp: int = 1, progress: bool = False,
               contexts: dict | None = None, warm_up: bool = True) -> dict:
-    """Warm-up + ``repeats`` interleaved timed renders of each job.
+    """Warm-up + ``repeats`` interleaved timed renders of each job at ``spp``
+    samples per pixel (default 1: the pixel centres of the exact working
+    reference; 0 = the scene's sampler, as Mitsuba does).
 
     ``jobs`` maps a label to ``(scene, integrator)``.  Returns, per label,
     :func:`summarize` plus ``image`` (the last render) or, if rendering
@@ -259,14 +222,17 @@ def load(scene_path: str, defines: dict | None = None):
 # Errors
 # --------------------------------------------------------------------------
 
-def errors(img, ref, blocks=BLOCKS, eps: float = metrics.DEFAULT_EPS) -> dict:
+def errors(img, ref, blocks=BLOCKS, eps: float = metrics.DEFAULT_EPS,
+           eps_mode: str = metrics.DEFAULT_EPS_MODE) -> dict:
     """:func:`metrics.compare` at each block size, flattened:
-    ``relmse_b<k>``, ``flip_b<k>``, ``rmse_b<k>``, ``max_error_b<k>``,
-    ``mean_ratio_b<k>`` and ``nonfinite`` (pixels with a NaN/Inf channel)."""
+    ``relmse_b<k>`` (scale-free unless ``eps_mode="absolute"``, DESIGN §2),
+    ``flip_b<k>``, ``rmse_b<k>``, ``max_error_b<k>``,
+    ``max_error_over_peak_b<k>``, ``mean_ratio_b<k>`` and ``nonfinite``
+    (pixels with a NaN/Inf channel)."""
     out = {}
     for k in blocks:
-        c = metrics.compare(img, ref, block=k, eps=eps)
-        for key in ("relmse", "flip", "rmse", "max_error", "mean_ratio"):
+        c = metrics.compare(img, ref, block=k, eps=eps, eps_mode=eps_mode)
+        for key in ("relmse", "flip", "rmse", "max_error", "max_error_over_peak", "mean_ratio"):
             out[f"{key}_b{k}"] = c[key]
         out["nonfinite"] = c["nonfinite_test"]
     return out

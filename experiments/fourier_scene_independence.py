@@ -77,7 +77,7 @@ def timed_render(scene, integrator, log: list) -> tuple:
     render, its rectified shadow map recorded."""
     with record_shadow_maps(log):
         t0, cpu0 = time.perf_counter(), time.process_time()
-        img, stages = bench.render_with_stages(scene, integrator)
+        img, stages = bench.render_with_stages(scene, integrator, spp=1)
         seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     return img, seconds, stages, cpu
 

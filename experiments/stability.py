@@ -228,7 +228,7 @@ def render(scene, kind: str, props: dict):
     from episcatter.reference import render_rgb
 
     try:
-        return render_rgb(scene, c.build(kind, props)), "ok"
+        return render_rgb(scene, c.build(kind, props), spp=1), "ok"
     except Exception as exc:  # noqa: BLE001 -- recorded, the other cases go on
         return None, c.describe_error(exc)
 
@@ -243,13 +243,23 @@ def stats(img, ref) -> dict:
     return {"nonfinite": e["nonfinite"], "relmse": e["relmse_b1"], "max_abs_error": max_abs,
             "max_rel_to_peak": max_abs / peak if peak > 0 else math.nan,
             "mean_ratio": e["mean_ratio_b1"], "ref_peak": peak,
-            "bounded": bounded(e["nonfinite"], e["relmse_b1"], max_abs, peak)}
+            "bounded": bounded(e["nonfinite"], e["relmse_b1"], max_abs, peak,
+                               e["mean_ratio_b1"])}
 
 
-def bounded(nonfinite: int, relmse: float, max_abs: float, peak: float) -> bool:
-    """No NaN/Inf, relMSE <= BOUND and max |error| <= PEAK_BOUND · peak (an
-    all-black reference needs an all-black image)."""
-    return bool(nonfinite == 0 and relmse <= BOUND and max_abs <= PEAK_BOUND * peak)
+#: |mean ratio - 1| at or below which the energy counts as right
+MEAN_RATIO_BOUND = 0.1
+
+
+def bounded(nonfinite: int, relmse: float, max_abs: float, peak: float,
+            mean_ratio: float = 1.0) -> bool:
+    """No NaN/Inf, scale-free relMSE <= BOUND, max |error| <= PEAK_BOUND · peak
+    (an all-black reference needs an all-black image) and the mean ratio
+    (energy) within MEAN_RATIO_BOUND of 1 (NaN for a black reference: not
+    checked)."""
+    energy_ok = not (abs(mean_ratio - 1.0) > MEAN_RATIO_BOUND)
+    return bool(nonfinite == 0 and relmse <= BOUND and max_abs <= PEAK_BOUND * peak
+                and energy_ok)
 
 
 def run_case(case: dict, s: dict, scale1_refs: dict) -> list[dict]:

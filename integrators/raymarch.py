@@ -33,7 +33,7 @@ import mitsuba as mi
 
 from .capture import capture_shadow_map
 from .marching import auto_spacing, march
-from .template import EpiscatterIntegrator, read_choice, read_number
+from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
 
 
 class RaymarchIntegrator(EpiscatterIntegrator):
@@ -42,7 +42,7 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         self.visibility = read_choice(props, "visibility", "shadowmap", ("shadowmap", "exact"))
         self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
                                                 minimum=1, maximum=32768, integer=True)
-        self.jitter = bool(props.get("jitter", False))
+        self.jitter = read_bool(props, "jitter", False)
         self.spacing = read_choice(props, "spacing", "auto", ("auto", "uniform", "equiangular"))
 
     def scattering(self, params, cap):

@@ -22,15 +22,28 @@ Common properties (every method):
 =====================  ======================================================
 ``output``             ``full`` (default): what volpath ``max_depth=2``
                        converges to; ``scattering``: L_scat alone.
-``samples_per_pixel``  camera samples per pixel (box filter, default 1); the
-                       ``spp`` argument of ``mi.render`` overrides it.
+``samples_per_pixel``  camera samples per pixel (box filter); default: the
+                       sensor's sampler's ``sample_count`` (Mitsuba's
+                       convention); the ``spp`` argument of ``mi.render``
+                       overrides both.
 ``jitter_pixels``      jitter camera samples inside the pixel (default: true
                        when more than one sample per pixel).
 =====================  ======================================================
 
 ``render_layers()`` returns a :class:`RenderResult`, a mapping of every layer
 (``full``, ``scattering``, ``surface``, ``distance``); ``mi.render`` returns the
-``output`` layer (RGB; one channel in ``*_mono`` variants).
+``output`` layer (RGB; one channel in ``*_mono`` variants) and, as Mitsuba's
+integrators do, develops every layer into the sensor's film (``film.bitmap()``,
+``film.write()``; the layers other than the output are the film's AOVs,
+:meth:`EpiscatterIntegrator.aov_names`).
+
+Boolean properties accept Mitsuba's ``<boolean>`` and the strings
+``true/false``, ``yes/no``, ``on/off``, ``1/0`` (any case); anything else is
+refused (:func:`read_bool`).  ``mi.traverse(integrator)`` lists the
+properties (read-only: build a new integrator to change one).  The methods
+render whole images, so there is no per-ray ``sample()`` (Mitsuba's ``aov``
+integrator cannot wrap them: use the film's AOVs) and no derivatives
+(``render_forward``/``render_backward`` refuse).
 """
 from __future__ import annotations
 
@@ -96,6 +109,12 @@ class RenderResult(Mapping):
 
     def __len__(self):
         return len(self.layers)
+#: the layers of render_layers() and their channels (film AOV names)
+LAYERS = ("full", "scattering", "surface", "distance")
+LAYER_CHANNELS = {"full": "RGB", "scattering": "RGB", "surface": "RGB", "distance": "Y"}
+NO_DERIVATIVES = ("{} is not differentiable: derivatives are not supported (the epipolar "
+                  "and filtered methods have no adjoint). For gradients render with one of "
+                  "Mitsuba's differentiable integrators, e.g. 'prbvolpath'.")
 
 
 def read_choice(props, name, default, choices):
@@ -118,11 +137,67 @@ def read_number(props, name, default, minimum=None, maximum=None, integer=False)
     return int(value) if integer else float(value)
 
 
+#: the strings read_bool accepts (compared in lower case)
+BOOL_STRINGS = {"true": True, "yes": True, "on": True, "1": True,
+                "false": False, "no": False, "off": False, "0": False}
+
+
 def read_bool(props, name: str, default: bool) -> bool:
+    """A boolean property: Mitsuba's ``<boolean>``, or one of
+    :data:`BOOL_STRINGS` (a ``<string>`` property, ``-p name=no``); anything
+    else is a ``ValueError`` (``bool("false")`` would be True)."""
     value = props.get(name, default)
+    if isinstance(value, str) and value.strip().lower() in BOOL_STRINGS:
+        return BOOL_STRINGS[value.strip().lower()]
     if not isinstance(value, bool):
-        raise ValueError(f"Property '{name}' = {value!r} must be a boolean.")
+        raise ValueError(f"Property '{name}' = {value!r} must be a boolean "
+                         f"(<boolean name=\"{name}\" value=\"true\"/>, or one of "
+                         f"{sorted(BOOL_STRINGS)}).")
     return value
+
+
+def layer_channels(layer: str) -> str:
+    """The channel names of a layer in the active variant (one ``Y`` channel
+    for every layer in ``*_mono`` variants)."""
+    return "Y" if "mono" in mi.variant() else LAYER_CHANNELS[layer]
+
+
+def sensor_of(scene, sensor=0):
+    """``mi.render``'s ``sensor`` argument (an index or a Sensor) as a Sensor."""
+    return scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+
+
+def scalar_seed(seed) -> int:
+    """``mi.render``'s seed as a Python int (Mitsuba may pass a Dr.Jit
+    ``UInt32`` of width 1)."""
+    if dr.is_array_v(seed):
+        if dr.width(seed) != 1:
+            raise ValueError(f"seed must be one number, got {dr.width(seed)} values.")
+        seed = seed[0]
+    return int(seed)
+
+
+def develop_into_film(film, layers: dict, output: str, aovs: list) -> None:
+    """Write the rendered layers into ``film``'s storage as Mitsuba's own
+    integrators leave it after ``mi.render`` (``film.prepare`` + one image
+    block): ``output`` as the colour, weight 1 (the box filter's pixel
+    averages are final), alpha 1, then the ``aovs`` ("layer.C")."""
+    channels = film.prepare(aovs)
+    base = int(film.base_channels_count())
+    h, w, colour = layers[output].shape[0], layers[output].shape[1], layers[output].shape[2]
+    if base not in (colour, colour + 1) or channels != base + 1 + len(aovs):
+        raise ValueError(f"film '{film.class_name()}' with {base} base channels is not "
+                         "supported: use an RGB(A) hdrfilm (Y in *_mono variants).")
+    columns = [layers[output][..., c] for c in range(colour)]
+    ones = dr.full(mi.TensorXf, 1.0, (h, w))
+    columns += [ones] * (base - colour) + [ones]     # alpha, weight
+    for name in aovs:
+        layer, channel = name.split(".")
+        columns.append(layers[layer][..., layer_channels(layer).index(channel)])
+    block = mi.ImageBlock(mi.TensorXf(dr.ravel(dr.stack(columns, axis=-1)),
+                                      (h, w, channels)),
+                          offset=film.crop_offset(), rfilter=film.rfilter(), border=False)
+    film.put_block(block)
 
 
 def pixel_average(values, pixel, n_pixels, spp):
@@ -181,10 +256,16 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         check_variant()
         super().__init__(props)
         self.output = read_choice(props, "output", "full", OUTPUTS)
-        self.samples_per_pixel = read_number(props, "samples_per_pixel", 1, minimum=1,
-                                             integer=True)
-        self.jitter_pixels = props.get("jitter_pixels", None)
+        self.samples_per_pixel = (read_number(props, "samples_per_pixel", 1, minimum=1,
+                                              integer=True)
+                                  if "samples_per_pixel" in props else None)
+        self.jitter_pixels = (read_bool(props, "jitter_pixels", False)
+                              if "jitter_pixels" in props else None)
         self.read_properties(props)
+        #: what mi.traverse lists: the properties as read (plain values)
+        self.property_names = tuple(k for k, v in vars(self).items()
+                                    if not k.startswith("_") and
+                                    isinstance(v, (bool, int, float, str, type(None))))
 
     # -- hooks ------------------------------------------------------------------
     def read_properties(self, props) -> None:
@@ -226,12 +307,55 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         timings = self.render_record.timings
         timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
 
+    # -- Mitsuba conventions ------------------------------------------------------
+    def sample_count(self, scene, sensor=0, spp=0) -> int:
+        """Camera samples per pixel of a render: ``spp`` if > 0, else the
+        ``samples_per_pixel`` property if given, else the sensor's sampler's
+        ``sample_count`` (what Mitsuba's integrators do)."""
+        if isinstance(spp, bool) or int(spp) != spp or spp < 0:
+            raise ValueError(f"spp = {spp!r} must be a whole number >= 0 "
+                             "(0: the integrator's samples_per_pixel or the sensor's sampler).")
+        if spp:
+            return int(spp)
+        if self.samples_per_pixel is not None:
+            return self.samples_per_pixel
+        return int(sensor_of(scene, sensor).sampler().sample_count())
+
+    def jitters(self, spp: int) -> bool:
+        """Whether camera samples are jittered inside the pixel at ``spp``
+        samples per pixel (else: at the pixel centre, for spp = 1)."""
+        return bool(self.jitter_pixels if self.jitter_pixels is not None else spp > 1)
+
+    def aov_names(self):
+        """The layers besides the output, developed into the film as AOVs."""
+        return [f"{layer}.{c}" for layer in LAYERS if layer != self.output
+                for c in layer_channels(layer)]
+
+    def traverse(self, callback):
+        """The properties, read-only (``mi.traverse``)."""
+        for name in self.property_names:
+            callback.put(name, getattr(self, name), mi.ParamFlags.ReadOnly)
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        raise NotImplementedError(
+            f"{type(self).__name__} renders whole images (epipolar/filtered methods have no "
+            "per-ray sample()), so Mitsuba's 'aov' integrator cannot wrap it: its layers "
+            "(scattering, surface, distance) are AOVs of the film after mi.render, or "
+            "integrator.render_layers(scene).")
+
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        raise NotImplementedError(NO_DERIVATIVES.format(type(self).__name__))
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        raise NotImplementedError(NO_DERIVATIVES.format(type(self).__name__))
+
     # -- the template -------------------------------------------------------------
     def render_layers(self, scene, sensor=0, seed=0, spp=0, samples=None) -> RenderResult:
         """Every layer of one render (see the module doc; ``samples``: an
         optional boolean mask over the camera samples, mi.Bool or NumPy)."""
         variant = check_variant()
-        record = RenderRecord(seed=int(seed))
+        seed = scalar_seed(seed)
+        record = RenderRecord(seed=seed)
         token = _RECORD.set(record)
         try:
             return self._render_layers(scene, sensor, seed, spp, samples, record, variant)
@@ -242,8 +366,8 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         t_start = time.perf_counter()
         with self.stage("validate"):
             params = SceneParams.from_scene(scene, sensor)
-        spp = int(spp) if spp else self.samples_per_pixel
-        jitter = self.jitter_pixels if self.jitter_pixels is not None else spp > 1
+        spp = self.sample_count(scene, sensor, spp)
+        jitter = self.jitters(spp)
         with self.stage("capture") as keep:
             cap = capture_camera(params, spp=spp, jitter=bool(jitter), seed=int(seed),
                                  surface=self.output == "full")
@@ -280,7 +404,10 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if not develop:
             raise ValueError(f"{type(self).__name__} only supports develop=True.")
-        return self.render_layers(scene, sensor, seed, spp)[self.output]
+        layers = self.render_layers(scene, sensor, seed, spp)
+        develop_into_film(sensor_of(scene, sensor).film(), layers, self.output,
+                          self.aov_names())
+        return layers[self.output]
 
     def to_string(self):
         return f"{type(self).__name__}[output={self.output}]"

@@ -35,7 +35,7 @@ def scene_dict(light="directional", phase=None, sigma_t=0.3, albedo=0.8, res=(32
                    "film": {"type": "hdrfilm", "width": res[0], "height": res[1],
                             "rfilter": {"type": "box"}},
                    "medium": {"type": "ref", "id": "medium"},
-                   "sampler": {"type": "independent", "sample_count": 16}},
+                   "sampler": {"type": "independent", "sample_count": 1}},
         "box": {"type": "cube", "to_world": T().scale(box_scale), "bsdf": {"type": "null"},
                 "interior": {"type": "ref", "id": "medium"}},
         "floor": {"type": "rectangle",

@@ -130,3 +130,65 @@ def test_parse_sweeps():
         "steps": [16, 64], "visibility": ["exact"]}
     with pytest.raises(ValueError):
         cmd_bench.parse_sweeps(["steps"])
+
+
+def test_default_exact_reference_matches_each_jobs_pixel_convention(cache, tmp_path):
+    """Issue 10, defect 3: a 1-spp render against a box-filtered reference
+    measured aliasing; now 1-spp jobs meet the pixel-centre reference and
+    antialiased jobs an antialiased one."""
+    results = bench.run_bench([SCENE], ["raymarch"], sweeps={"spp": [1, 4]},
+                              defines=TINY, reference="exact", ref_steps=16,
+                              params={"steps": 8, "visibility": "exact"},
+                              out_dir=str(tmp_path / "b"), repeats=1, progress=False)
+    by_spp = {r["spp"]: r for r in results}
+    assert by_spp[1]["convention"] == by_spp[1]["reference_convention"] == "pixel centres"
+    assert by_spp[4]["convention"] == by_spp[4]["reference_convention"] == "antialiased"
+    assert all("like for like" in r["comparison"] for r in results)
+    assert by_spp[1]["reference_spp"] == 2 and by_spp[4]["reference_spp"] > 2
+    assert "centres/centres" in bench.format_table(results)
+    # a fixed reference is used for every job and the mismatch is said
+    fixed = bench.run_bench([SCENE], ["raymarch"], sweeps={"spp": [1]}, defines=TINY,
+                            reference="exact", ref_steps=16, ref_spp=4, ref_chunk=2,
+                            params={"steps": 8, "visibility": "exact"},
+                            out_dir=str(tmp_path / "c"), repeats=1, progress=False)
+    assert fixed[0]["comparison"].startswith("MISMATCH")
+    assert "centres/aa !" in bench.format_table(fixed)
+
+
+def test_net_scattering_is_never_negative():
+    """bench.json had negative scattering_net_s: every sub-stage was
+    subtracted from the scattering stage's median."""
+    runs = [{"scattering": 0.10, "shadowmap": 0.04, "rectify": 0.05, "sweep": 0.04,
+             "ring": 0.02}, {"scattering": 0.12, "shadowmap": 0.05, "rectify": 0.07,
+                             "sweep": 0.03, "ring": 0.01}]
+    assert bench.median_net_scattering(runs) == pytest.approx(0.065)
+    assert bench.net_scattering({"scattering": 0.1}) == 0.1
+
+
+def test_stage_breakdown_sums_to_the_wall_time():
+    top, parts = bench.stage_breakdown({"validate": 0.01, "capture": 0.02, "scattering": 0.2,
+                                        "compose": 0.01, "total": 0.245, "svd": 0.1}, 0.25)
+    assert list(top) == ["validate", "capture", "scattering", "compose", "other", "total"]
+    assert top["other"] == pytest.approx(0.01) and top["total"] == pytest.approx(0.25)
+    assert sum(v for k, v in top.items() if k != "total") == pytest.approx(top["total"])
+    assert parts == {"svd": 0.1}
+
+
+def test_plot_has_tick_labels_and_labelled_points():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    results = [{"scene": "s", "integrator": "raymarch", "params": {"steps": n}, "spp": 1,
+                "time_s": 0.1 + 0.01 * i, "relmse": 1e-4 * (1 + 0.2 * i)}
+               for i, n in enumerate((16, 32, 64))]
+    fig, ax = plt.subplots()
+    bench.draw_plot(ax, results, {"name": "t", "reference": "exact", "eps": 0.01, "block": 1})
+    fig.canvas.draw()
+    for axis in (ax.xaxis, ax.yaxis):
+        labels = [t.get_text() for t in axis.get_ticklabels() if t.get_visible()]
+        lo, hi = axis.get_view_interval()
+        shown = [t for t, loc in zip(labels, axis.get_majorticklocs()) if lo <= loc <= hi]
+        assert len([t for t in shown if t]) >= 2, labels
+    assert sorted(t.get_text() for t in ax.texts) == ["steps=16", "steps=32", "steps=64"]
+    plt.close(fig)

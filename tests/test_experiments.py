@@ -149,3 +149,15 @@ def test_spot_texture_cost_quick(tmp_path):
     rows = read_csv(tmp_path / "cost.csv")
     assert {r["light"] for r in rows} == {"textured", "untextured"}
     assert all(float(r["textured_over_untextured"]) > 0 for r in rows)
+
+
+def test_stability_criteria_check_the_energy():
+    """Issue 10: an image at 0.44 of the right brightness must not count as
+    bounded (its absolute-eps relMSE was tiny)."""
+    rng = np.random.default_rng(3)
+    ref = 0.005 + 0.045 * rng.random((12, 16, 3))
+    dark = stability.stats(ref * 0.44, ref)
+    assert not dark["bounded"] and dark["mean_ratio"] == pytest.approx(0.44)
+    assert stability.stats(ref * 1.001, ref)["bounded"]
+    assert not stability.bounded(0, 0.0, 0.0, 1.0, mean_ratio=0.8)
+    assert stability.bounded(0, 0.0, 0.0, 0.0, mean_ratio=float("nan"))

@@ -115,7 +115,56 @@ def test_compare_block_and_keys(rng):
 def test_compare_black_reference_reports_flip_error():
     result = metrics.compare(np.ones((4, 4, 3)), np.zeros((4, 4, 3)))
     assert np.isnan(result["flip"]) and "all-black" in result["flip_error"]
-    assert result["relmse"] == pytest.approx(100.0)
+    assert result["relmse"] == np.inf   # scale-free: any light on a black image
+    absolute = metrics.compare(np.ones((4, 4, 3)), np.zeros((4, 4, 3)), eps_mode="absolute")
+    assert absolute["relmse"] == pytest.approx(100.0)
+
+
+def _scattering_like(rng, shape=(24, 32, 3)):
+    """A dim image like our scattering layers (0.005-0.05) and a 'correct'
+    render of it (1 % noise)."""
+    ref = 0.005 + 0.045 * rng.random(shape)
+    return ref, ref * (1.0 + 0.01 * rng.standard_normal(shape))
+
+
+def test_compare_default_relmse_is_scale_free(rng):
+    ref, good = _scattering_like(rng)
+    results = [metrics.compare(good * s, ref * s) for s in (1.0, 1e-3, 1e3)]
+    for r in results[1:]:
+        assert r["relmse"] == pytest.approx(results[0]["relmse"], rel=1e-9)
+        assert r["max_error_over_peak"] == pytest.approx(results[0]["max_error_over_peak"],
+                                                          rel=1e-9)
+    assert results[0]["eps_mode"] == "relative"
+    assert "scale-free" in results[0]["relmse_convention"]
+
+
+def test_energy_loss_scores_far_worse_than_a_correct_render(rng):
+    """Issue 10, defect 1: an image at 0.44 of the right brightness scored
+    like a correct one with the absolute eps (MSE x 100 for dim images)."""
+    ref, good = _scattering_like(rng)
+    dark = ref * 0.44
+    assert metrics.compare(dark, ref)["relmse"] > 1e3 * metrics.compare(good, ref)["relmse"]
+    assert metrics.compare(dark, ref)["mean_ratio"] == pytest.approx(0.44)
+    # the absolute form (kept as an option) hides it: both below 1e-4
+    absolute = [metrics.compare(img, ref, eps_mode="absolute")["relmse"] for img in (good, dark)]
+    assert max(absolute) < 1e-1 and absolute[1] / absolute[0] < 1e4
+
+
+def test_eps_and_mode_are_checked():
+    img = np.ones((2, 2, 3))
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="must be a finite number > 0"):
+            metrics.compare(img, img, eps=bad)
+    with pytest.raises(ValueError, match="not one of"):
+        metrics.compare(img, img, eps_mode="percent")
+
+
+def test_noise_relmse_relative_mode_is_scale_free(rng):
+    a, b = rng.random((16, 16, 3)), rng.random((16, 16, 3))
+    assert metrics.noise_relmse(a * 1e-3, b * 1e-3) == pytest.approx(metrics.noise_relmse(a, b))
+    v = rng.random((16, 16, 3))
+    assert metrics.noise_relmse_from_variance(a * 1e-3, v * 1e-6) == \
+        pytest.approx(metrics.noise_relmse_from_variance(a, v))
 
 
 @pytest.mark.parametrize("block", [1, 2])
@@ -124,7 +173,7 @@ def test_noise_relmse_recovers_known_variance(rng, block):
     sigma = 0.2  # per-half standard deviation
     a = truth + rng.normal(0.0, sigma, truth.shape)
     b = truth + rng.normal(0.0, sigma, truth.shape)
-    estimate = metrics.noise_relmse(a, b, block=block)
+    estimate = metrics.noise_relmse(a, b, block=block, eps_mode="absolute")
     expected = sigma**2 / 2 / block**2 / (2.0**2 + metrics.DEFAULT_EPS)
     assert estimate == pytest.approx(expected, rel=0.1)
     # ...and it predicts the actual relMSE of the combined image.
@@ -160,7 +209,7 @@ def test_compare_command_table_and_missing_file(tmp_path, rng, capsys):
     write_exr(tmp_path / "a.exr", img)
     assert cmd_compare.run(_parse([str(tmp_path / "a.exr"), str(tmp_path / "a.exr")])) == 0
     out = capsys.readouterr().out
-    assert "relMSE (eps=0.01)" in out and "HDR-FLIP" in out
+    assert "relMSE (scale-free relMSE, eps 0.01·mean(ref)²)" in out and "HDR-FLIP" in out
 
     with pytest.raises(FileNotFoundError, match="missing.exr"):
         cmd_compare.run(_parse([str(tmp_path / "a.exr"), str(tmp_path / "missing.exr")]))
