@@ -182,13 +182,17 @@ def develop_into_film(film, layers: dict, output: str, aovs: list) -> None:
     integrators leave it after ``mi.render`` (``film.prepare`` + one image
     block): ``output`` as the colour, weight 1 (the box filter's pixel
     averages are final), alpha 1, then the ``aovs`` ("layer.C")."""
-    channels = film.prepare(aovs)
-    base = int(film.base_channels_count())
+    channels = int(film.prepare(aovs))
+    base = channels - 1 - len(aovs)          # colour (+ alpha); then weight, AOVs
     h, w, colour = layers[output].shape[0], layers[output].shape[1], layers[output].shape[2]
-    if base not in (colour, colour + 1) or channels != base + 1 + len(aovs):
-        raise ValueError(f"film '{film.class_name()}' with {base} base channels is not "
-                         "supported: use an RGB(A) hdrfilm (Y in *_mono variants).")
-    columns = [layers[output][..., c] for c in range(colour)]
+    if colour == 1 and base in (3, 4):       # a *_mono variant's RGB(A) film: Y as grey
+        columns = [layers[output][..., 0]] * 3
+        colour = 3
+    elif base in (colour, colour + 1):
+        columns = [layers[output][..., c] for c in range(colour)]
+    else:
+        raise ValueError(f"film '{film.class_name()}' with {base} colour/alpha channels is not "
+                         "supported: use an RGB(A) hdrfilm.")
     ones = dr.full(mi.TensorXf, 1.0, (h, w))
     columns += [ones] * (base - colour) + [ones]     # alpha, weight
     for name in aovs:
