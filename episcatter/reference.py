@@ -20,8 +20,10 @@ reference itself) without a second render.
 
 Files: ``<stem>-<kind>-<key>-spp<N>.exr`` (layers ``full``, ``half_a``,
 ``half_b``) plus ``.json`` sidecar with the same stem, in :func:`default_cache_dir`.
-``key`` hashes the scene file's bytes, the ``-D`` defines and the kind's
-settings; the resolution is fixed by those two, and is recorded (and checked)
+``key`` hashes the scene file's bytes, the ``-D`` defines, the kind's
+settings and the bytes of every file the scene loads (meshes, textures,
+included XML; :mod:`episcatter.scene_files`): editing a mesh misses the
+cache; the resolution is fixed by those two, and is recorded (and checked)
 in the sidecar.  The chunk size is not part of the key (it does not change
 what the image converges to).
 """
@@ -38,7 +40,9 @@ import numpy as np
 
 from . import metrics
 from .imageio import read_exr, write_exr
-from .scene_loading import load_scene, make_integrator, scene_key, unwrap_render_error
+from .scene_files import dependency_digest, scene_files
+from .scene_loading import (load_scene, make_integrator, prepare_scene_file, scene_key,
+                            unwrap_render_error)
 
 KINDS = ("volpath", "exact")
 DEFAULT_SPP = {"volpath": 4096, "exact": 16}
@@ -71,10 +75,17 @@ def _kind_settings(kind: str, steps: int | None) -> dict:
 
 
 def reference_key(scene_path, defines=None, kind="volpath", steps=None) -> str:
-    """Cache key: hash of the scene file, the defines and the kind's settings."""
-    settings = _kind_settings(kind, steps)
-    extra = json.dumps(settings, sort_keys=True)
-    return scene_key(os.path.abspath(scene_path), _str_defines(defines), extra=extra)
+    """Cache key: hash of the scene file, the defines, the kind's settings
+    and the content of every file the scene loads (meshes, textures,
+    included XML: :func:`episcatter.scene_files.scene_files`).  A scene that
+    loads no file keeps the key of the XML, defines and settings alone."""
+    scene_path = prepare_scene_file(scene_path)
+    defines = _str_defines(defines)
+    extra = json.dumps(_kind_settings(kind, steps), sort_keys=True)
+    files = dependency_digest(scene_files(scene_path, defines))
+    if files:
+        extra += "\nfiles:\n" + files
+    return scene_key(scene_path, defines, extra=extra)
 
 
 def reference_path(scene_path, defines=None, spp=None, kind="volpath", steps=None,

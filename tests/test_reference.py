@@ -136,3 +136,91 @@ def test_cli_writes_exr_json_png(cache, tmp_path, capsys):
     assert str(out) in text and "relMSE noise" in text and "rendered" in text
     assert cmd_reference.run(args) == 0
     assert "from the cache" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------
+# The cache key covers every file the scene loads (issue 10, defect 2)
+# --------------------------------------------------------------------------
+
+QUAD_OBJ = "v -1 0.5 -1\nv 1 0.5 -1\nv 1 0.5 1\nv -1 0.5 1\nf 1 2 3\nf 1 3 4\n"
+
+
+def _scene_with_mesh(folder, mesh_text=QUAD_OBJ):
+    """tiny_scene plus an .obj blocker named through a <default> and $mesh,
+    and its sphere moved to an included XML file in a subfolder."""
+    text = open(SCENE).read()
+    start = text.index('    <shape type="sphere">')
+    end = text.index("</shape>", start) + len("</shape>")
+    sphere = text[start:end]
+    (folder / "parts").mkdir(exist_ok=True)
+    (folder / "parts" / "sphere.xml").write_text(
+        f'<scene version="3.0.0">\n{sphere}\n</scene>\n')
+    (folder / "meshes").mkdir(exist_ok=True)
+    (folder / "meshes" / "blocker.obj").write_text(mesh_text)
+    text = text[:start] + (
+        '    <default name="mesh" value="blocker"/>\n'
+        '    <include filename="parts/sphere.xml"/>\n'
+        '    <shape type="obj">\n'
+        '        <string name="filename" value="meshes/$mesh.obj"/>\n'
+        '        <transform name="to_world"><translate value="0, 3, 0"/></transform>\n'
+        '    </shape>') + text[end:]
+    path = folder / "mesh_scene.xml"
+    path.write_text(text)
+    return str(path)
+
+
+def test_scene_files_walks_defaults_includes_and_paths(tmp_path):
+    from episcatter.scene_files import scene_files
+
+    scene = _scene_with_mesh(tmp_path)
+    files = scene_files(scene, TINY)
+    assert [(f.role, f.name) for f in files] == [("include", "parts/sphere.xml"),
+                                                 ("filename", "meshes/blocker.obj")]
+    assert files[1].path == str(tmp_path / "meshes" / "blocker.obj")
+    # a -D define wins over the <default>; the longest $name is substituted first
+    (tmp_path / "meshes" / "blocker_x.obj").write_text(QUAD_OBJ)
+    other = scene_files(scene, {"mesh": "blocker_x", "me": "nope"})
+    assert other[1].path == str(tmp_path / "meshes" / "blocker_x.obj")
+    # <path> folders are searched for plugin files, and a spectrum file counts
+    (tmp_path / "assets").mkdir()
+    (tmp_path / "assets" / "glass.spd").write_text("400 1\n700 1\n")
+    (tmp_path / "scene2.xml").write_text(
+        '<scene version="3.0.0"><path value="assets"/>'
+        '<bsdf type="diffuse"><spectrum name="reflectance" filename="glass.spd"/></bsdf>'
+        '</scene>')
+    files = scene_files(tmp_path / "scene2.xml")
+    assert [(f.role, f.path) for f in files] == [("spectrum", str(tmp_path / "assets" / "glass.spd"))]
+
+
+def test_include_cycle_is_a_clear_error(tmp_path):
+    from episcatter.scene_files import scene_files
+
+    (tmp_path / "a.xml").write_text('<scene version="3.0.0"><include filename="a.xml"/></scene>')
+    with pytest.raises(ValueError, match="include"):
+        scene_files(tmp_path / "a.xml")
+
+
+def test_editing_a_loaded_mesh_misses_the_cache(cache, tmp_path):
+    scene = _scene_with_mesh(tmp_path)
+    _, first = reference.render_reference(scene, TINY, spp=2, chunk=1, progress=False)
+    assert not first["cached"]
+    # same bytes written again: a hit
+    (tmp_path / "meshes" / "blocker.obj").write_text(QUAD_OBJ)
+    _, again = reference.render_reference(scene, TINY, spp=2, chunk=1, progress=False)
+    assert again["cached"] and again["path"] == first["path"]
+    # the blocker moved up: the key changes, the reference is rendered anew
+    (tmp_path / "meshes" / "blocker.obj").write_text(QUAD_OBJ.replace("0.5", "0.7"))
+    _, edited = reference.render_reference(scene, TINY, spp=2, chunk=1, progress=False)
+    assert not edited["cached"] and edited["path"] != first["path"]
+    assert reference.find_cached_reference(scene, TINY) == edited["path"]
+    # the included XML counts too
+    inc = tmp_path / "parts" / "sphere.xml"
+    inc.write_text(inc.read_text().replace('radius" value="1"', 'radius" value="0.9"'))
+    assert reference.reference_key(scene, TINY) != edited["scene_key"]
+
+
+def test_scene_without_files_keeps_its_key():
+    # the shipped references of file-free scenes keep their names
+    import scenes
+    assert reference.reference_key(scenes.path("beam"), {"res_x": 48, "res_y": 36}) == \
+        "dd03c18e6c6b3ce3"
