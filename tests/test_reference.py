@@ -224,3 +224,48 @@ def test_scene_without_files_keeps_its_key():
     import scenes
     assert reference.reference_key(scenes.path("beam"), {"res_x": 48, "res_y": 36}) == \
         "dd03c18e6c6b3ce3"
+
+
+# --------------------------------------------------------------------------
+# Chunks are stored as they finish; an interrupted reference resumes (issue 17)
+# --------------------------------------------------------------------------
+
+class Interrupt(KeyboardInterrupt):
+    """Raised by an on_chunk hook to stop a render as Ctrl-C would."""
+
+
+def stop_after(n):
+    def hook(done, total):
+        if done >= n:
+            raise Interrupt(f"{done} of {total}")
+    return hook
+
+
+def test_interrupted_reference_resumes_with_the_missing_chunks(cache):
+    args = dict(spp=16, chunk=2, progress=False)      # 8 chunks
+    with pytest.raises(Interrupt):
+        reference.render_reference(SCENE, TINY, on_chunk=stop_after(3), **args)
+    path = reference.reference_path(SCENE, TINY, 16)
+    assert not os.path.exists(path)
+    store = reference.ChunkStore(reference.chunk_folder(path))
+    assert len(store.stored(list(enumerate(reference.chunk_plan(16, 2))))) == 3
+
+    rgb, info = reference.render_reference(SCENE, TINY, **args)
+    assert (info["chunks_rendered"], info["chunks_resumed"]) == (5, 3)
+    assert [c["run"] for c in info["chunks"]].count("earlier") == 3
+    assert [c["seed"] for c in info["chunks"]] == info["seeds"] == list(range(8))
+    assert not os.path.exists(reference.chunk_folder(path))     # removed once merged
+
+    fresh, again = reference.render_reference(SCENE, TINY, force=True, **args)
+    assert again["chunks_rendered"] == 8
+    assert np.array_equal(rgb, fresh)
+
+
+def test_merge_is_in_chunk_order():
+    rng = np.random.default_rng(1)
+    images = [rng.random((3, 4, 3), dtype=np.float32) for _ in range(6)]
+    sizes = [3, 3, 2, 2, 2, 2]
+    a, b, var = reference.merge_chunks(images, sizes)
+    np.testing.assert_allclose(a, sum(i * n for i, n in zip(images[0::2], sizes[0::2])) / 7, rtol=1e-6)
+    np.testing.assert_allclose(b, sum(i * n for i, n in zip(images[1::2], sizes[1::2])) / 7, rtol=1e-6)
+    assert var.shape == a.shape and np.all(var >= 0)
