@@ -94,38 +94,37 @@ def dask_client(scheduler=None, workers=None, timed=False, drjit_threads=None, v
 
     uses_dask(scheduler, workers)
     distributed = require_dask()
-    cluster = None
-    if scheduler:
-        client = distributed.Client(scheduler)
-    else:
-        k = int(workers)
-        if timed and k > 1:
-            if verbose:
-                print(f"timed runs: 1 local worker with every core instead of {k} "
-                      "(a timed render never shares the machine)")
-            k = 1
-        threads = drjit_threads or max(1, (os.cpu_count() or 1) // k)
-        drjit_threads = threads
-        cluster = distributed.LocalCluster(
-            n_workers=k, threads_per_worker=1, processes=True, host="127.0.0.1",
-            resources={MACHINE_RESOURCE: 1}, env={"OPENBLAS_NUM_THREADS": "1"},
-            silence_logs=logging.ERROR, **_dashboard_kwargs(verbose))
-        client = distributed.Client(cluster)
-        if verbose:
-            link = f", dashboard {cluster.dashboard_link}" if cluster.dashboard_link else ""
-            print(f"started a local Dask cluster: {k} worker process(es) x 1 task, "
-                  f"{threads} Dr.Jit thread(s) each{link}")
     from .dask_setup import EpiscatterSetup
 
-    try:
+    with contextlib.ExitStack() as stack:
+        if scheduler:
+            client = stack.enter_context(distributed.Client(scheduler))
+        else:
+            k, drjit_threads = _local_size(int(workers), timed, drjit_threads, verbose)
+            dashboard = _dashboard_kwargs(verbose)
+            cluster = stack.enter_context(distributed.LocalCluster(
+                n_workers=k, threads_per_worker=1, processes=True, host="127.0.0.1",
+                resources={MACHINE_RESOURCE: 1}, env={"OPENBLAS_NUM_THREADS": "1"},
+                silence_logs=logging.ERROR, **dashboard))
+            client = stack.enter_context(distributed.Client(cluster))
+            if verbose:
+                link = f", dashboard {cluster.dashboard_link}" if dashboard["dashboard_address"] else ""
+                print(f"started a local Dask cluster: {k} worker process(es), one task each at "
+                      f"a time, {drjit_threads} Dr.Jit thread(s) each{link}")
         client.register_plugin(EpiscatterSetup(mi.variant(), drjit_threads), name=PLUGIN_NAME)
         if timed:
             _check_machine_resource(client)
         yield client
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+
+
+def _local_size(k, timed, drjit_threads, verbose):
+    """(worker processes, Dr.Jit threads each) of a local cluster."""
+    if timed and k > 1:
+        if verbose:
+            print(f"timed runs: 1 local worker with every core instead of {k} "
+                  "(a timed render never shares the machine)")
+        k = 1
+    return k, drjit_threads or max(1, (os.cpu_count() or 1) // k)
 
 
 def _check_machine_resource(client) -> None:
@@ -156,29 +155,27 @@ def map_runs(fn, items, scheduler=None, workers=None, progress=True, desc="runs"
 
     items = list(items)
     results = [None] * len(items)
-    bar = tqdm(total=len(items), desc=desc, unit=unit, disable=not progress)
-    try:
-        if not uses_dask(scheduler, workers):
+    if not uses_dask(scheduler, workers):
+        with tqdm(total=len(items), desc=desc, unit=unit, disable=not progress) as bar:
             for i, item in enumerate(items):
                 _deliver(results, i, fn(item), on_result, collect)
                 bar.update()
-            return results
-        with dask_client(scheduler, workers, timed, drjit_threads, verbose=progress) as client:
-            distributed = require_dask()
-            resources = {MACHINE_RESOURCE: 1} if timed else None
-            futures = [client.submit(fn, item, pure=False, resources=resources) for item in items]
-            index = {f.key: i for i, f in enumerate(futures)}
-            try:
-                for future in distributed.as_completed(futures):
-                    result = future.result()
-                    future.release()
-                    _deliver(results, index[future.key], result, on_result, collect)
-                    bar.update()
-            finally:
-                client.cancel([f for f in futures if not f.done()])
         return results
-    finally:
-        bar.close()
+    with dask_client(scheduler, workers, timed, drjit_threads, verbose=progress) as client, \
+            tqdm(total=len(items), desc=desc, unit=unit, disable=not progress) as bar:
+        distributed = require_dask()
+        resources = {MACHINE_RESOURCE: 1} if timed else None
+        futures = [client.submit(fn, item, pure=False, resources=resources) for item in items]
+        index = {f.key: i for i, f in enumerate(futures)}
+        try:
+            for future in distributed.as_completed(futures):
+                result = future.result()
+                future.release()
+                _deliver(results, index[future.key], result, on_result, collect)
+                bar.update()
+        finally:
+            client.cancel([f for f in futures if not f.done()])
+    return results
 
 
 def _deliver(results, i, result, on_result, collect) -> None:
