@@ -73,12 +73,13 @@ def worker_name() -> str:
         return "local"
 
 
-def _dashboard_kwargs(verbose) -> dict:
+def _has_dashboard(verbose) -> bool:
+    """Whether the Dask dashboard can run (it needs bokeh); says so if not."""
     if importlib.util.find_spec("bokeh") is None:
         if verbose:
             print("Dask dashboard: off (bokeh is not installed; `pip install bokeh` for it)")
-        return {"dashboard_address": None}
-    return {"dashboard_address": "127.0.0.1:0"}
+        return False
+    return True
 
 
 @contextlib.contextmanager
@@ -101,14 +102,14 @@ def dask_client(scheduler=None, workers=None, timed=False, drjit_threads=None, v
             client = stack.enter_context(distributed.Client(scheduler))
         else:
             k, drjit_threads = _local_size(int(workers), timed, drjit_threads, verbose)
-            dashboard = _dashboard_kwargs(verbose)
+            dashboard = _has_dashboard(verbose)
             cluster = stack.enter_context(distributed.LocalCluster(
                 n_workers=k, threads_per_worker=1, processes=True, host="127.0.0.1",
                 resources={MACHINE_RESOURCE: 1}, env={"OPENBLAS_NUM_THREADS": "1"},
-                silence_logs=logging.ERROR, **dashboard))
+                dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR))
             client = stack.enter_context(distributed.Client(cluster))
             if verbose:
-                link = f", dashboard {cluster.dashboard_link}" if dashboard["dashboard_address"] else ""
+                link = f", dashboard {cluster.dashboard_link}" if dashboard else ""
                 print(f"started a local Dask cluster: {k} worker process(es), one task each at "
                       f"a time, {drjit_threads} Dr.Jit thread(s) each{link}")
         client.register_plugin(EpiscatterSetup(mi.variant(), drjit_threads), name=PLUGIN_NAME)
