@@ -197,40 +197,47 @@ def _check_scopes(integrators, params, sweeps) -> None:
 
 
 def make_references(scenes, defines, reference, ref_spp=None, ref_chunk=None,
-                    ref_steps=None, progress=True) -> dict:
+                    ref_steps=None, progress=True, scheduler=None, workers=None) -> dict:
     """Reference EXR path per scene (rendered or taken from the cache)."""
     if reference in (None, "none"):
         return {scene: None for scene in scenes}
     refs = {}
     for scene in scenes:
         _, info = render_reference(scene, defines, spp=ref_spp, chunk=ref_chunk,
-                                   progress=progress, kind=reference, steps=ref_steps)
+                                   progress=progress, kind=reference, steps=ref_steps,
+                                   scheduler=scheduler, workers=workers)
         refs[scene] = info["path"]
     return refs
 
 
-def _run_jobs(jobs, refs, defines, repeats, block, eps, progress):
-    """Run the jobs in order; a failing job is recorded with its error."""
-    from tqdm.auto import tqdm
+def run_job(job, refs, defines, repeats, block, eps) -> dict:
+    """:func:`bench_job` of one job description; a failing job is returned
+    with its error (picklable: a Dask task of :func:`_run_jobs`)."""
+    try:
+        return bench_job(job["scene"], job["integrator"], job["params"], defines,
+                         refs[job["scene"]], repeats=repeats, block=block, eps=eps)
+    except Exception as exc:  # noqa: BLE001 -- recorded, the sweep goes on
+        return {"scene": os.path.abspath(job["scene"]), "integrator": job["integrator"],
+                "params": job["params"], "error": f"{type(exc).__name__}: {exc}"}
 
-    results = []
-    bar = tqdm(jobs, desc="bench", unit="job", disable=not progress)
-    for job in bar:
-        bar.set_postfix_str(f"{job['integrator']} {_params_text(job['params'])}"[:60])
-        try:
-            res = bench_job(job["scene"], job["integrator"], job["params"], defines,
-                            refs[job["scene"]], repeats=repeats, block=block, eps=eps)
-        except Exception as exc:  # noqa: BLE001 -- recorded, the sweep goes on
-            res = {"scene": os.path.abspath(job["scene"]), "integrator": job["integrator"],
-                   "params": job["params"], "error": f"{type(exc).__name__}: {exc}"}
-        results.append(res)
-    return results
+
+def _run_jobs(jobs, refs, defines, repeats, block, eps, progress, scheduler=None, workers=None):
+    """Run the jobs (in this process, or as timed Dask tasks: one timed task
+    per machine, see :mod:`episcatter.distributed`); results in job order."""
+    import functools
+
+    from .distributed import map_runs
+
+    run = functools.partial(run_job, refs=refs, defines=defines, repeats=repeats,
+                            block=block, eps=eps)
+    return map_runs(run, jobs, scheduler=scheduler, workers=workers, progress=progress,
+                    desc="bench", unit="job", timed=True)
 
 
 def run_bench(scenes, integrators, sweeps=None, defines=None, reference="exact",
               out_dir="results/bench/bench", repeats=3, params=None, block=1,
               eps=metrics.DEFAULT_EPS, ref_spp=None, ref_chunk=None, ref_steps=None,
-              progress=True, name=None) -> list[dict]:
+              progress=True, name=None, scheduler=None, workers=None) -> list[dict]:
     """Benchmark every integrator on every scene over the cartesian product
     of ``sweeps`` (``{'raymarch.steps': [16, 64], 'spp': [1, 4]}``).
 
@@ -239,13 +246,16 @@ def run_bench(scenes, integrators, sweeps=None, defines=None, reference="exact",
     steps=ref_steps``) or ``None`` (times only).  Writes ``bench.csv``,
     ``bench.json`` and ``bench.png`` into ``out_dir`` and returns the job
     results (see :func:`bench_job`; failed jobs carry ``error``).
+    ``scheduler``/``workers``: run the jobs and the references' chunks on
+    Dask (:func:`episcatter.distributed.map_runs`).
     """
     scenes = [os.path.abspath(s) for s in scenes]
     defines = {k: str(v) for k, v in (defines or {}).items()}
     reference = None if reference in (None, "none") else reference
     jobs = expand_jobs(scenes, integrators, params, sweeps)
-    refs = make_references(scenes, defines, reference, ref_spp, ref_chunk, ref_steps, progress)
-    results = _run_jobs(jobs, refs, defines, repeats, block, eps, progress)
+    refs = make_references(scenes, defines, reference, ref_spp, ref_chunk, ref_steps, progress,
+                           scheduler, workers)
+    results = _run_jobs(jobs, refs, defines, repeats, block, eps, progress, scheduler, workers)
     os.makedirs(out_dir, exist_ok=True)
     settings = {
         "name": name or os.path.basename(os.path.normpath(out_dir)),

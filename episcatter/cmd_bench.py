@@ -50,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: results/bench/<scene stems>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help="run the jobs on this Dask scheduler's cluster, one timed job per "
+                            "machine (workers need --resources machine=1; [distributed] extra)")
+    where.add_argument("--workers", type=int, metavar="K", default=None,
+                       help="local Dask cluster (timed jobs still run one at a time)")
 
 
 def parse_sweeps(items) -> dict:
@@ -79,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
                         out_dir=out, repeats=args.repeats, params=parse_assignments(args.param),
                         block=args.block, eps=args.eps, ref_spp=args.ref_spp,
                         ref_chunk=args.ref_chunk, ref_steps=args.ref_steps,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, scheduler=args.scheduler,
+                        workers=args.workers)
     print(format_table(results))
     print(f"times: median of {args.repeats} runs after a warm-up; errors: relMSE vs the "
           f"{args.reference} reference, {args.block}x{args.block} block averages")

@@ -35,7 +35,7 @@ def cluster():
 
     with dask_distributed.LocalCluster(
             n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-            dashboard_address=None, resources={distributed.MACHINE_RESOURCE: 1},
+            dashboard_address="127.0.0.1:0", resources={distributed.MACHINE_RESOURCE: 1},
             env={"OPENBLAS_NUM_THREADS": "1"}, silence_logs=logging.ERROR) as c:
         yield c
 
@@ -183,3 +183,16 @@ def test_workers_start_a_local_cluster_with_pinned_timing(capsys):
     assert "started a local Dask cluster: 1 worker process(es)" in text
     assert f"{os.cpu_count()} Dr.Jit thread(s)" in text
     assert "dashboard" in text            # its address, or why there is none
+
+
+def test_bench_jobs_run_as_tasks(cluster, tmp_path):
+    from episcatter import bench
+
+    # volpath on the scene of the references above: its kernels are compiled on the workers
+    results = bench.run_bench([SCENE], ["volpath"], sweeps={"spp": [2, 4]},
+                              defines={"res_x": 16, "res_y": 12}, reference=None,
+                              out_dir=str(tmp_path / "bench"), repeats=1, progress=False,
+                              scheduler=cluster.scheduler_address)
+    assert [r["spp"] for r in results] == [2, 4]
+    assert not any(r.get("error") for r in results)
+    assert all(r["time_s"] > 0 for r in results)
