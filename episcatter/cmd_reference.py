@@ -22,7 +22,7 @@ import os
 import shutil
 import sys
 
-from .distributed import require_dask, uses_dask
+from .distributed import add_cluster_arguments, require_dask, uses_dask
 from .imageio import write_png_preview
 from .reference import DEFAULT_CHUNK, DEFAULT_EXACT_STEPS, DEFAULT_SPP, KINDS, render_reference, sidecar_path
 from .scene_loading import parse_assignments
@@ -49,12 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exposure", default="auto",
                         help="PNG preview exposure in stops, or 'auto' (default)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                       help="render the chunks on the Dask cluster of this scheduler "
-                            "(tcp://host:8786; needs the [distributed] extra)")
-    where.add_argument("--workers", type=int, metavar="K", default=None,
-                       help="render the chunks on a local Dask cluster of K worker processes")
+    add_cluster_arguments(parser, "chunks")
 
 
 def _copy_out(path: str, output: str) -> str:

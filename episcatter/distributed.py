@@ -63,6 +63,17 @@ def uses_dask(scheduler=None, workers=None) -> bool:
     return bool(scheduler) or workers is not None
 
 
+def add_cluster_arguments(parser, runs: str, note: str = "") -> None:
+    """Add ``--scheduler ADDRESS | --workers K`` (mutually exclusive) to a
+    command's argparse ``parser``; ``runs`` names what becomes tasks."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help=f"run the {runs} on the Dask cluster of this scheduler "
+                            f"(tcp://host:8786; needs the [distributed] extra){note}")
+    where.add_argument("--workers", type=int, metavar="K", default=None,
+                       help=f"run the {runs} on a local Dask cluster of K worker processes")
+
+
 def worker_name() -> str:
     """The address of the Dask worker running this code, or ``'local'``."""
     if "distributed" not in sys.modules:
