@@ -18,6 +18,7 @@ import os
 
 from . import metrics
 from .bench import format_table, run_bench
+from .distributed import add_cluster_arguments
 from .reference import DEFAULT_EXACT_STEPS
 from .scene_loading import parse_assignments, parse_value
 
@@ -50,12 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: results/bench/<scene stems>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                       help="run the jobs on this Dask scheduler's cluster, one timed job per "
-                            "machine (workers need --resources machine=1; [distributed] extra)")
-    where.add_argument("--workers", type=int, metavar="K", default=None,
-                       help="local Dask cluster (timed jobs still run one at a time)")
+    add_cluster_arguments(parser, "jobs", note="; one timed job per machine: workers need "
+                          "--resources machine=1")
 
 
 def parse_sweeps(items) -> dict:
