@@ -269,3 +269,25 @@ def test_merge_is_in_chunk_order():
     np.testing.assert_allclose(a, sum(i * n for i, n in zip(images[0::2], sizes[0::2])) / 7, rtol=1e-6)
     np.testing.assert_allclose(b, sum(i * n for i, n in zip(images[1::2], sizes[1::2])) / 7, rtol=1e-6)
     assert var.shape == a.shape and np.all(var >= 0)
+
+
+def test_a_process_seeing_other_files_refuses_to_render(tmp_path):
+    scene = _scene_with_mesh(tmp_path)
+    key = reference.reference_key(scene, TINY)
+    job = reference.ChunkJob(scene, tuple(sorted((k, str(v)) for k, v in TINY.items())),
+                             "volpath", None, key)
+    assert reference.render_chunk(job, (0, 1))["image"].shape == (12, 16, 3)
+    (tmp_path / "meshes" / "blocker.obj").write_text(QUAD_OBJ.replace("0.5", "0.6"))
+    stale = reference.ChunkJob(job.scene_path, job.defines, "volpath", None, key + "x")
+    with pytest.raises(ValueError, match="files differ"):
+        reference.render_chunk(stale, (0, 1))
+
+
+def test_cli_ctrl_c_says_how_to_resume(monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cmd_reference, "render_reference", interrupted)
+    from episcatter import cli
+    assert cli.main(["reference", SCENE, "--no-progress"]) == 130
+    assert "run the same command again" in capsys.readouterr().err
