@@ -15,10 +15,10 @@ whatever the completion order, so merging is deterministic.  A worker that
 dies mid-task loses nothing: the scheduler runs its tasks again elsewhere.
 
 Worker processes: each is set up once by
-:class:`episcatter.dask_setup.EpiscatterSetup` (a Dask worker plugin): ``import integrators`` (registers the plugins, configures
-LLVM), the client's Mitsuba variant, and Dr.Jit's thread pool sized so the
-workers of one machine do not oversubscribe its cores
-(``dr.set_thread_count``).  Workers run one task at a time (``nthreads=1``).
+:class:`episcatter.dask_setup.EpiscatterSetup` (a Dask worker plugin):
+``import integrators`` (registers the plugins, configures LLVM), the
+client's Mitsuba variant, and Dr.Jit's thread pool sized so the workers of
+one machine do not oversubscribe its cores (``dr.set_thread_count``).  Workers run one task at a time (``nthreads=1``).
 
 Timing stays pinned (``timed=True``): a timed task requires the worker
 resource ``machine=1``.  Every worker this module starts has it, and a local
@@ -167,7 +167,7 @@ def map_runs(fn, items, scheduler=None, workers=None, progress=True, desc="runs"
 
     items = list(items)
     results = [None] * len(items)
-    if not uses_dask(scheduler, workers):
+    if not uses_dask(scheduler, workers) or not items:
         with tqdm(total=len(items), desc=desc, unit=unit, disable=not progress) as bar:
             for i, item in enumerate(items):
                 _deliver(results, i, fn(item), on_result, collect)
