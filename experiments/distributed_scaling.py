@@ -104,6 +104,10 @@ def summarize(rows):
         over = statistics.median(r["wall_s"] for r in pick["overhead"])
         connect = statistics.median(r["connect_s"] for r in pick["overhead"])
         n_over = pick["overhead"][0]["chunks"]
+        # wall time not covered by the workers' render time, per chunk
+        outside = statistics.median(
+            (r["wall_s"] - r["chunk_render_s"] / r["workers_used"]) / r["chunks"]
+            for r in pick["overhead"])
         out.append({"config": config, "workers": pick["scaling"][0]["workers"],
                     "chunks": pick["scaling"][0]["chunks"], "wall_s": wall,
                     "wall_min_s": min(r["wall_s"] for r in pick["scaling"]),
@@ -111,6 +115,7 @@ def summarize(rows):
                     "overhead_wall_s": over,
                     "connect_s": connect,
                     "overhead_per_chunk_s": (over - connect - local["overhead"]) / n_over,
+                    "outside_render_per_chunk_s": outside,
                     "load_before": pick["scaling"][0]["load_before"],
                     "load_after": pick["scaling"][0]["load_after"]})
     return out
@@ -122,14 +127,16 @@ def report(summary, s, repeats) -> str:
     head = (f"volpath reference of {s['scene']} at {w}x{h}, {s['spp']} spp in {n} chunks of "
             f"{s['chunk']} spp; wall time of render_reference, median of {repeats}; "
             f"cost per chunk from {s['overhead_spp']} chunks of 1 spp against this process, "
-            "less the client's connection (once per call)")
+            "less the client's connection (once per call); 'not rendering': (wall - the "
+            "chunks' render seconds / workers) / chunks of those 1-spp runs")
     rows = [[r["config"], common.fmt(r["wall_s"]), common.fmt(r["speedup_vs_local"]),
              ("-" if r["config"] == "local" else f"{1e3 * r['overhead_per_chunk_s']:.0f} ms"),
              ("-" if r["config"] == "local" else f"{r['connect_s']:.2f} s"),
+             f"{1e3 * r['outside_render_per_chunk_s']:.0f} ms",
              f"{r['load_before'][0]:.1f} / {r['load_after'][0]:.1f}"] for r in summary]
     return head + "\n\n" + common.markdown_table(
         ["configuration", "wall time (s)", "speed-up vs this process",
-         "Dask cost per chunk", "connect once per call", "load (1 min) before / after"], rows)
+         "Dask cost per chunk", "connect once per call", "not rendering, per chunk", "load (1 min) before / after"], rows)
 
 
 def main(argv=None):
@@ -137,10 +144,14 @@ def main(argv=None):
     p.add_argument("--quick", action="store_true", help="tiny sizes (seconds)")
     p.add_argument("--repeats", type=int, default=None, help="runs per configuration (3)")
     p.add_argument("--out", default=None)
+    p.add_argument("--resummarize", action="store_true",
+                   help="rewrite scaling.csv and table.md from the runs in scaling.json")
     args = p.parse_args(argv)
     s = settings_for(args.quick)
     repeats = args.repeats or (1 if args.quick else 3)
     out = common.output_dir(NAME, args.out, args.quick)
+    if args.resummarize:
+        return _resummarize(out)
     rows = []
     with tempfile.TemporaryDirectory() as cache_dir:
         for config, workers in [("local", 0)] + [(f"{k} worker(s)", k) for k in s["workers"]]:
@@ -158,6 +169,22 @@ def main(argv=None):
     common.write_csv(out / "runs.csv", rows)
     common.write_csv(out / "scaling.csv", summary)
     common.write_json(out / "scaling.json", settings, rows, summary=summary)
+    common.write_text(out / "table.md", text)
+
+
+def _resummarize(out):
+    import json
+
+    with open(out / "scaling.json") as f:
+        doc = json.load(f)
+    summary = summarize(doc["rows"])
+    text = report(summary, doc["settings"], doc["settings"]["repeats"])
+    print(text)
+    doc["summary"] = summary
+    with open(out / "scaling.json", "w") as f:
+        json.dump(doc, f, indent=2)
+        f.write("\n")
+    common.write_csv(out / "scaling.csv", summary)
     common.write_text(out / "table.md", text)
 
 
