@@ -273,13 +273,14 @@ class References:
     the job's convention (a mismatch is recorded in the job's
     ``comparison``); otherwise, for ``exact``, each job gets the reference
     of its own convention: the pixel centres (two identical 1-spp chunks)
-    or antialiased (the reference module's default spp)."""
+    or antialiased (the reference module's default spp).  ``scheduler`` /
+    ``workers``: render the references' chunks on Dask."""
 
     def __init__(self, defines, reference, ref_spp=None, ref_chunk=None, ref_steps=None,
-                 progress=True):
+                 progress=True, scheduler=None, workers=None):
         self.defines, self.reference = defines, reference
         self.ref_spp, self.ref_chunk, self.ref_steps = ref_spp, ref_chunk, ref_steps
-        self.progress = progress
+        self.progress, self.scheduler, self.workers = progress, scheduler, workers
         self.fixed = reference == "volpath" or bool(ref_spp) or bool(ref_chunk)
         self.paths: dict[str, dict[str, str]] = {}
 
@@ -298,35 +299,44 @@ class References:
                 check_volpath_medium(load_scene(scene, self.defines))
             _, info = render_reference(scene, self.defines, spp=spp, chunk=chunk,
                                        progress=self.progress, kind=self.reference,
-                                       steps=self.ref_steps)
+                                       steps=self.ref_steps, scheduler=self.scheduler,
+                                       workers=self.workers)
             known[key] = info["path"]
         return known[key]
 
 
-def _run_jobs(jobs, refs: References, defines, repeats, block, eps, eps_mode, progress):
-    """Run the jobs in order, each compared with the reference of its own
-    pixel convention; a failing job is recorded with its error."""
-    from tqdm.auto import tqdm
+def run_job(job, refs: References, defines, repeats, block, eps, eps_mode) -> dict:
+    """:func:`bench_job` of one job description, compared with the reference
+    of its own pixel convention; a failing job is returned with its error
+    (picklable: a Dask task of :func:`_run_jobs`)."""
+    try:
+        return bench_job(job["scene"], job["integrator"], job["params"], defines,
+                         lambda convention: refs.path(job["scene"], convention),
+                         repeats=repeats, block=block, eps=eps, eps_mode=eps_mode)
+    except Exception as exc:  # noqa: BLE001 -- recorded, the sweep goes on
+        return {"scene": os.path.abspath(job["scene"]), "integrator": job["integrator"],
+                "params": job["params"], "error": f"{type(exc).__name__}: {exc}"}
 
-    results = []
-    bar = tqdm(jobs, desc="bench", unit="job", disable=not progress)
-    for job in bar:
-        bar.set_postfix_str(f"{job['integrator']} {_params_text(job['params'])}"[:60])
-        try:
-            res = bench_job(job["scene"], job["integrator"], job["params"], defines,
-                            lambda convention: refs.path(job["scene"], convention),
-                            repeats=repeats, block=block, eps=eps, eps_mode=eps_mode)
-        except Exception as exc:  # noqa: BLE001 -- recorded, the sweep goes on
-            res = {"scene": os.path.abspath(job["scene"]), "integrator": job["integrator"],
-                   "params": job["params"], "error": f"{type(exc).__name__}: {exc}"}
-        results.append(res)
-    return results
+
+def _run_jobs(jobs, refs: References, defines, repeats, block, eps, eps_mode, progress,
+              scheduler=None, workers=None):
+    """Run the jobs (in this process, or as timed Dask tasks: one timed task
+    per machine, see :mod:`episcatter.distributed`); results in job order."""
+    import functools
+
+    from .distributed import map_runs
+
+    run = functools.partial(run_job, refs=refs, defines=defines, repeats=repeats,
+                            block=block, eps=eps, eps_mode=eps_mode)
+    return map_runs(run, jobs, scheduler=scheduler, workers=workers, progress=progress,
+                    desc="bench", unit="job", timed=True)
 
 
 def run_bench(scenes, integrators, sweeps=None, defines=None, reference="exact",
               out_dir="results/bench/bench", repeats=3, params=None, block=1,
               eps=metrics.DEFAULT_EPS, ref_spp=None, ref_chunk=None, ref_steps=None,
-              progress=True, name=None, eps_mode=metrics.DEFAULT_EPS_MODE) -> list[dict]:
+              progress=True, name=None, eps_mode=metrics.DEFAULT_EPS_MODE,
+              scheduler=None, workers=None) -> list[dict]:
     """Benchmark every integrator on every scene over the cartesian product
     of ``sweeps`` (``{'raymarch.steps': [16, 64], 'spp': [1, 4]}``).
 
@@ -337,14 +347,18 @@ def run_bench(scenes, integrators, sweeps=None, defines=None, reference="exact",
     (times only).  relMSE is scale-free unless ``eps_mode="absolute"``.  Writes ``bench.csv``,
     ``bench.json`` and ``bench.png`` into ``out_dir`` and returns the job
     results (see :func:`bench_job`; failed jobs carry ``error``).
+    ``scheduler``/``workers``: run the jobs and the references' chunks on
+    Dask (:func:`episcatter.distributed.map_runs`).
     """
     scenes = [os.path.abspath(s) for s in scenes]
     defines = {k: str(v) for k, v in (defines or {}).items()}
     reference = None if reference in (None, "none") else reference
     jobs = expand_jobs(scenes, integrators, params, sweeps)
     eps = metrics.check_eps(eps, eps_mode)
-    refs = References(defines, reference, ref_spp, ref_chunk, ref_steps, progress)
-    results = _run_jobs(jobs, refs, defines, repeats, block, eps, eps_mode, progress)
+    refs = References(defines, reference, ref_spp, ref_chunk, ref_steps, progress,
+                      scheduler, workers)
+    results = _run_jobs(jobs, refs, defines, repeats, block, eps, eps_mode, progress,
+                        scheduler, workers)
     os.makedirs(out_dir, exist_ok=True)
     settings = {
         "name": name or os.path.basename(os.path.normpath(out_dir)),

@@ -18,6 +18,7 @@ import os
 
 from . import metrics
 from .bench import format_table, run_bench
+from .distributed import add_cluster_arguments
 from .reference import DEFAULT_EXACT_STEPS
 from .scene_loading import parse_assignments, parse_value
 
@@ -55,6 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: results/bench/<scene stems>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_cluster_arguments(parser, "jobs", note="; one timed job per machine: workers need "
+                          "--resources machine=1")
 
 
 def parse_sweeps(items) -> dict:
@@ -87,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
                         out_dir=out, repeats=args.repeats, params=parse_assignments(args.param),
                         block=args.block, eps=args.eps, ref_spp=args.ref_spp,
                         ref_chunk=args.ref_chunk, ref_steps=args.ref_steps,
-                        progress=not args.no_progress, eps_mode=args.eps_mode)
+                        progress=not args.no_progress, eps_mode=args.eps_mode,
+                        scheduler=args.scheduler, workers=args.workers)
     print(format_table(results))
     print(f"times: median of {args.repeats} runs after a warm-up (first = compile + first run); "
           f"errors: {metrics.eps_text(args.eps, args.eps_mode)} vs the {args.reference} "

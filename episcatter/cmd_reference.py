@@ -1,4 +1,5 @@
-"""``episcatter reference SCENE [--spp N] [--chunk N] [-D name=value]... [-o out.exr] [--force]``
+"""``episcatter reference SCENE [--spp N] [--chunk N] [-D name=value]... [-o out.exr] [--force]
+[--scheduler ADDRESS | --workers K]``
 
 Renders (or takes from the cache) the ground truth of a scene: Mitsuba's
 ``volpath`` with ``max_depth=2`` (``--kind exact``: ``raymarch
@@ -6,6 +7,11 @@ visibility=exact`` with ``--steps``), see :mod:`episcatter.reference`.
 Writes the EXR (layers ``full``, ``half_a``, ``half_b``), its JSON sidecar
 and an sRGB PNG preview; with ``-o`` the EXR and sidecar are copied there and
 the preview goes next to the copy.  Prints the path, time and noise level.
+``--scheduler``/``--workers`` render the chunks as Dask tasks (optional
+extra ``[distributed]``, :mod:`episcatter.distributed`); the image is the
+same bit for bit.  Finished chunks are stored as they complete: after
+Ctrl-C, a killed worker or a lost scheduler, the same command again renders
+only the missing chunks.
 The CLI (``episcatter/cli.py``) wires this module in through
 :func:`add_arguments` and :func:`run`.
 """
@@ -14,7 +20,9 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import sys
 
+from .distributed import add_cluster_arguments, require_dask, uses_dask
 from .imageio import write_png_preview
 from .reference import DEFAULT_CHUNK, DEFAULT_EXACT_STEPS, DEFAULT_SPP, KINDS, render_reference, sidecar_path
 from .scene_loading import parse_assignments
@@ -41,6 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exposure", default="auto",
                         help="PNG preview exposure in stops, or 'auto' (default)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_cluster_arguments(parser, "chunks")
 
 
 def _copy_out(path: str, output: str) -> str:
@@ -61,9 +70,17 @@ def _noise_text(noise: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     """Make the reference described by parsed ``args``; returns the exit status."""
     defines = parse_assignments(args.define)
-    rgb, info = render_reference(args.scene, defines, spp=args.spp, chunk=args.chunk,
-                                 progress=not args.no_progress, force=args.force,
-                                 kind=args.kind, steps=args.steps)
+    if uses_dask(args.scheduler, args.workers):
+        require_dask()          # the extra's name before any rendering
+    try:
+        rgb, info = render_reference(args.scene, defines, spp=args.spp, chunk=args.chunk,
+                                     progress=not args.no_progress, force=args.force,
+                                     kind=args.kind, steps=args.steps,
+                                     scheduler=args.scheduler, workers=args.workers)
+    except KeyboardInterrupt:
+        print(f"episcatter reference: interrupted; the finished chunks are stored, run the "
+              "same command again to render only the missing ones", file=sys.stderr)
+        return 130
     path = _copy_out(info["path"], args.output) if args.output else info["path"]
     png = os.path.splitext(path)[0] + ".png"
     exposure = args.exposure if args.exposure == "auto" else float(args.exposure)
@@ -74,6 +91,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"  integrator: {info['integrator']}")
     print(f"  render time: {info['wall_time_s']:.2f} s ({len(info['seeds'])} chunks of "
           f"<= {info['chunk']} spp; first chunk includes kernel compilation)")
+    if info.get("chunks_resumed"):
+        print(f"  resumed: {info['chunks_resumed']} chunks from an earlier run, "
+              f"{info['chunks_rendered']} rendered now")
     print(f"  {_noise_text(info['relmse_noise'])}")
     print(f"  wrote {path} (+ {os.path.basename(sidecar_path(path))}, {os.path.basename(png)})")
     return 0

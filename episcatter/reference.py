@@ -20,25 +20,34 @@ reference itself) without a second render.
 
 Files: ``<stem>-<kind>-<key>-spp<N>.exr`` (layers ``full``, ``half_a``,
 ``half_b``) plus ``.json`` sidecar with the same stem, in :func:`default_cache_dir`.
-``key`` hashes the scene file's bytes, the ``-D`` defines and the kind's
-settings; the resolution is fixed by those two, and is recorded (and checked)
+``key`` hashes the scene file's bytes, the ``-D`` defines, the kind's
+settings and the bytes of every file the scene loads (meshes, textures,
+included XML; :mod:`episcatter.scene_files`): editing a mesh misses the
+cache; the resolution is fixed by those two, and is recorded (and checked)
 in the sidecar.  The chunk size is not part of the key (it does not change
 what the image converges to).
 """
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import math
 import os
 import platform
 import time
+from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from . import metrics
+from .chunk_store import ChunkStore
+from .distributed import map_runs, uses_dask, worker_name
 from .imageio import read_exr, write_exr
-from .scene_loading import load_scene, make_integrator, scene_key, unwrap_render_error
+from .scene_files import dependency_digest, scene_files
+from .scene_loading import (load_scene, make_integrator, prepare_scene_file, scene_key,
+                            unwrap_render_error)
 
 KINDS = ("volpath", "exact")
 DEFAULT_SPP = {"volpath": 4096, "exact": 16}
@@ -71,10 +80,17 @@ def _kind_settings(kind: str, steps: int | None) -> dict:
 
 
 def reference_key(scene_path, defines=None, kind="volpath", steps=None) -> str:
-    """Cache key: hash of the scene file, the defines and the kind's settings."""
-    settings = _kind_settings(kind, steps)
-    extra = json.dumps(settings, sort_keys=True)
-    return scene_key(os.path.abspath(scene_path), _str_defines(defines), extra=extra)
+    """Cache key: hash of the scene file, the defines, the kind's settings
+    and the content of every file the scene loads (meshes, textures,
+    included XML: :func:`episcatter.scene_files.scene_files`).  A scene that
+    loads no file keeps the key of the XML, defines and settings alone."""
+    scene_path = prepare_scene_file(scene_path)
+    defines = _str_defines(defines)
+    extra = json.dumps(_kind_settings(kind, steps), sort_keys=True)
+    files = dependency_digest(scene_files(scene_path, defines))
+    if files:
+        extra += "\nfiles:\n" + files
+    return scene_key(scene_path, defines, extra=extra)
 
 
 def reference_path(scene_path, defines=None, spp=None, kind="volpath", steps=None,
@@ -257,30 +273,109 @@ def load_variance(path) -> np.ndarray | None:
 # The reference itself
 # --------------------------------------------------------------------------
 
-def _accumulate(scene, integrator, sizes, progress, desc):
-    """Render the chunks; returns (half_a, half_b, seconds of each chunk)."""
-    from tqdm.auto import tqdm
+@dataclass(frozen=True)
+class ChunkJob:
+    """Everything a process (this one or a Dask worker) needs to render
+    chunks of one reference: plain values, picklable.  ``key`` is the
+    reference key the client computed; a process whose scene files give
+    another key refuses to render (different or edited files)."""
+    scene_path: str
+    defines: tuple
+    kind: str
+    steps: int | None
+    key: str
 
+
+@lru_cache(maxsize=1)
+def _chunk_scene(job: ChunkJob, variant: str):
+    """(scene, integrator, source, description) of a job, loaded once per
+    process and variant (a worker renders many chunks of one reference)."""
+    key = reference_key(job.scene_path, dict(job.defines), job.kind, job.steps)
+    if key != job.key:
+        raise ValueError(
+            f"The scene files of '{job.scene_path}' seen by {worker_name()} give the cache "
+            f"key {key}, the client's give {job.key}: the files differ between the machines "
+            "(or were edited during the render). Make the same files visible to every "
+            "worker at the same path, then run again.")
+    scene = load_scene(job.scene_path, dict(job.defines))
+    return (scene, *reference_integrator(scene, job.kind, job.steps))
+
+
+def render_chunk(job: ChunkJob, item) -> dict:
+    """Render one chunk ``item = (seed, spp)`` of a reference.
+
+    Returns ``{'seed', 'spp', 'image'`` (float32 (H, W, 3), as rendered)
+    ``, 'seconds', 'worker', 'integrator', 'integrator_source'}``.  The same
+    function runs locally and on Dask workers, so both give the same bits.
+    """
+    import mitsuba as mi
+
+    seed, spp = int(item[0]), int(item[1])
+    scene, integrator, source, description = _chunk_scene(job, mi.variant())
+    t0 = time.perf_counter()
+    image = render_rgb(scene, integrator, spp=spp, seed=seed)
+    return {"seed": seed, "spp": spp, "image": image, "seconds": time.perf_counter() - t0,
+            "worker": worker_name(), "integrator": description, "integrator_source": source}
+
+
+def merge_chunks(images, sizes):
+    """(half_a, half_b, variance) of chunk images given in chunk order.
+
+    Even chunks (seeds 0, 2, ...) average into ``half_a``, odd ones into
+    ``half_b``, each weighted by its samples per pixel; ``variance`` is the
+    per-pixel variance of the mean from the K chunk means (K - 1 degrees of
+    freedom; NaN for one chunk).  Sums run in chunk order, so a reference
+    merges to the same bits whichever order its chunks finished in.
+    """
     halves = [None, None]
     weights = [0, 0]
-    seconds = []
     sum_sq = 0.0
-    for seed, n in enumerate(tqdm(sizes, desc=desc, unit="chunk", disable=not progress)):
-        t0 = time.perf_counter()
-        img = render_rgb(scene, integrator, spp=n, seed=seed).astype(np.float64)
-        seconds.append(time.perf_counter() - t0)
+    for seed, (image, n) in enumerate(zip(images, sizes)):
+        img = np.asarray(image).astype(np.float64)
         side = seed % 2
         halves[side] = img * n if halves[side] is None else halves[side] + img * n
         weights[side] += n
         sum_sq = sum_sq + img * img
     half_a, half_b = halves[0] / weights[0], halves[1] / weights[1]
-    # per-pixel variance of the mean from the K chunk means (K-1 dof);
     # chunks hold (nearly) equal sample counts
     K = len(sizes)
     mean = 0.5 * (half_a + half_b)
     variance = np.maximum(sum_sq / K - mean * mean, 0.0) / max(K - 1, 1) if K > 1 else \
         np.full_like(mean, np.nan)
-    return half_a, half_b, variance, seconds
+    return half_a, half_b, variance
+
+
+def chunk_folder(path) -> str:
+    """Folder of the stored chunks of the reference EXR ``path``."""
+    return os.path.splitext(os.fspath(path))[0] + ".chunks"
+
+
+def _render_chunks(job, plan, store, scheduler, workers, progress, on_chunk):
+    """Render the chunks of ``plan`` missing from ``store``, storing each as
+    it completes; returns {seed: meta} of every chunk and the seeds rendered now."""
+    metas = {seed: meta for seed, (_, meta) in store.stored(plan).items()}
+    missing = [item for item in plan if item[0] not in metas]
+    for meta in metas.values():
+        meta["run"] = "earlier"
+
+    def keep(_, result):
+        meta = {k: v for k, v in result.items() if k != "image"}
+        store.save(result["seed"], result["spp"], result["image"], meta)
+        metas[result["seed"]] = dict(meta, run="this")
+        if on_chunk is not None:
+            on_chunk(len(metas), len(plan))
+
+    desc = f"{job.kind} reference {os.path.basename(job.scene_path)}"
+    if metas:
+        desc += f" ({len(metas)} chunks stored)"
+    try:
+        map_runs(functools.partial(render_chunk, job), missing, scheduler=scheduler,
+                 workers=workers, progress=progress, desc=desc, unit="chunk",
+                 on_result=keep, collect=False)
+    finally:
+        if not uses_dask(scheduler, workers):
+            _chunk_scene.cache_clear()   # free the scene of a local render
+    return metas, [seed for seed, _ in missing]
 
 
 def _write_atomic(path, layers, info) -> None:
@@ -313,7 +408,8 @@ def _cached(path, spp, kind):
 
 def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=None,
                      progress=True, force=False, kind="volpath", steps=None,
-                     eps=metrics.DEFAULT_EPS) -> tuple[np.ndarray, dict]:
+                     eps=metrics.DEFAULT_EPS, scheduler=None, workers=None,
+                     on_chunk=None, keep_chunks=False) -> tuple[np.ndarray, dict]:
     """Render (or load from the cache) a reference image of a scene file.
 
     Parameters
@@ -334,10 +430,27 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
         visibility=exact steps=steps``, default 1024 steps).
     eps:
         Regularizer of the relMSE noise estimate.
+    scheduler, workers:
+        Render the chunks as Dask tasks on the cluster at ``scheduler``, or
+        on a local cluster of ``workers`` processes
+        (:func:`episcatter.distributed.map_runs`); neither: in this process.
+        The result is the same bit for bit.
+    on_chunk:
+        ``on_chunk(done, total)`` after each chunk is stored.
+    keep_chunks:
+        Keep the stored chunks after the reference is written (default:
+        removed; they are only needed to resume an interrupted render).
+
+    Every finished chunk is stored at once (:mod:`episcatter.chunk_store`,
+    folder :func:`chunk_folder`), so an interrupted render resumes: the next
+    call renders only the missing chunks.  Chunks merge in chunk order
+    (:func:`merge_chunks`).  ``force`` also discards stored chunks.
 
     Returns ``(rgb, info)``: the (H, W, 3) float32 image (mean of the two
     halves) and the sidecar dict (see module docstring and
-    ``info['path']``).  A cache hit only reads the files.
+    ``info['path']``; ``info['chunks']`` lists each chunk's seed, spp,
+    seconds, worker and whether it was rendered in this run or an earlier,
+    interrupted one).  A cache hit only reads the files.
     """
     if kind not in KINDS:
         raise ValueError(f"Reference kind '{kind}' is not one of {list(KINDS)}.")
@@ -354,30 +467,40 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
             return hit
 
     t0 = time.perf_counter()
-    scene = load_scene(scene_path, defines)
-    integrator, source, description = reference_integrator(scene, kind, steps)
-    half_a, half_b, variance, seconds = _accumulate(scene, integrator, sizes, progress,
-                                          f"{kind} reference {os.path.basename(scene_path)}")
+    key = reference_key(scene_path, defines, kind, steps)
+    job = ChunkJob(scene_path, tuple(sorted(defines.items())), kind, steps, key)
+    plan = list(enumerate(sizes))
+    store = ChunkStore(chunk_folder(path))
+    if force:
+        store.clear()
+    metas, rendered = _render_chunks(job, plan, store, scheduler, workers, progress, on_chunk)
+    half_a, half_b, variance = merge_chunks((store.load(seed, n)[0] for seed, n in plan), sizes)
     wall = time.perf_counter() - t0
     full = 0.5 * (half_a + half_b)
+    chunks = [{"seed": seed, "spp": n, "seconds": metas[seed]["seconds"],
+               "worker": metas[seed]["worker"], "run": metas[seed]["run"]} for seed, n in plan]
     info = {
         "kind": kind,
         "settings": _kind_settings(kind, steps),
-        "integrator": description,
-        "integrator_source": source,
+        "integrator": metas[0]["integrator"],
+        "integrator_source": metas[0]["integrator_source"],
         "spp": spp,
         "chunk": chunk,
         "chunk_spp": sizes,
-        "seeds": list(range(len(sizes))),
+        "seeds": [seed for seed, _ in plan],
+        "chunks": chunks,
+        "chunks_rendered": len(rendered),
+        "chunks_resumed": len(plan) - len(rendered),
         "halves": {"half_a": "even chunks (seeds 0, 2, ...)",
                    "half_b": "odd chunks (seeds 1, 3, ...)",
                    "spp_each": spp // 2},
         "wall_time_s": wall,
-        "chunk_time_s": seconds,
+        "chunk_time_s": [c["seconds"] for c in chunks],
+        "distributed": {"scheduler": scheduler, "workers": workers},
         "resolution": [int(full.shape[1]), int(full.shape[0])],
         "scene": scene_path,
         "defines": defines,
-        "scene_key": reference_key(scene_path, defines, kind, steps),
+        "scene_key": key,
         "relmse_noise": noise_levels(half_a, half_b, eps),
         "relmse_noise_chunks": chunk_noise_levels(full, variance, eps),
         "variance": "layer 'variance': per-pixel variance of the mean from the "
@@ -387,5 +510,7 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
     }
     _write_atomic(path, {"full": full, "half_a": half_a, "half_b": half_b,
                          "variance": variance}, info)
+    if not keep_chunks:
+        store.clear()
     info["cached"] = False
     return full.astype(np.float32), info

@@ -49,8 +49,9 @@ def parse_assignments(items) -> dict:
     return out
 
 
-def load_scene(path: str, defines: dict | None = None):
-    """mi.load_file with XML defaults; suite assets are built on first use."""
+def prepare_scene_file(path: str) -> str:
+    """The absolute path of an existing scene file, after building the
+    suite's generated meshes and textures when the file belongs to ``scenes/``."""
     path = os.path.abspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"Scene file '{path}' does not exist.")
@@ -58,6 +59,12 @@ def load_scene(path: str, defines: dict | None = None):
     if os.path.dirname(path) == os.path.abspath(scenes_dir):
         import scenes
         scenes.ensure_assets()
+    return path
+
+
+def load_scene(path: str, defines: dict | None = None):
+    """mi.load_file with XML defaults; suite assets are built on first use."""
+    path = prepare_scene_file(path)
     defines = {k: str(v) for k, v in (defines or {}).items()}
     return mi.load_file(path, **defines)
 

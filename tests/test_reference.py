@@ -136,3 +136,158 @@ def test_cli_writes_exr_json_png(cache, tmp_path, capsys):
     assert str(out) in text and "relMSE noise" in text and "rendered" in text
     assert cmd_reference.run(args) == 0
     assert "from the cache" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------
+# The cache key covers every file the scene loads (issue 10, defect 2)
+# --------------------------------------------------------------------------
+
+QUAD_OBJ = "v -1 0.5 -1\nv 1 0.5 -1\nv 1 0.5 1\nv -1 0.5 1\nf 1 2 3\nf 1 3 4\n"
+
+
+def _scene_with_mesh(folder, mesh_text=QUAD_OBJ):
+    """tiny_scene plus an .obj blocker named through a <default> and $mesh,
+    and its sphere moved to an included XML file in a subfolder."""
+    text = open(SCENE).read()
+    start = text.index('    <shape type="sphere">')
+    end = text.index("</shape>", start) + len("</shape>")
+    sphere = text[start:end]
+    (folder / "parts").mkdir(exist_ok=True)
+    (folder / "parts" / "sphere.xml").write_text(
+        f'<scene version="3.0.0">\n{sphere}\n</scene>\n')
+    (folder / "meshes").mkdir(exist_ok=True)
+    (folder / "meshes" / "blocker.obj").write_text(mesh_text)
+    text = text[:start] + (
+        '    <default name="mesh" value="blocker"/>\n'
+        '    <include filename="parts/sphere.xml"/>\n'
+        '    <shape type="obj">\n'
+        '        <string name="filename" value="meshes/$mesh.obj"/>\n'
+        '        <transform name="to_world"><translate value="0, 3, 0"/></transform>\n'
+        '    </shape>') + text[end:]
+    path = folder / "mesh_scene.xml"
+    path.write_text(text)
+    return str(path)
+
+
+def test_scene_files_walks_defaults_includes_and_paths(tmp_path):
+    from episcatter.scene_files import scene_files
+
+    scene = _scene_with_mesh(tmp_path)
+    files = scene_files(scene, TINY)
+    assert [(f.role, f.name) for f in files] == [("include", "parts/sphere.xml"),
+                                                 ("filename", "meshes/blocker.obj")]
+    assert files[1].path == str(tmp_path / "meshes" / "blocker.obj")
+    # a -D define wins over the <default>; the longest $name is substituted first
+    (tmp_path / "meshes" / "blocker_x.obj").write_text(QUAD_OBJ)
+    other = scene_files(scene, {"mesh": "blocker_x", "me": "nope"})
+    assert other[1].path == str(tmp_path / "meshes" / "blocker_x.obj")
+    # <path> folders are searched for plugin files, and a spectrum file counts
+    (tmp_path / "assets").mkdir()
+    (tmp_path / "assets" / "glass.spd").write_text("400 1\n700 1\n")
+    (tmp_path / "scene2.xml").write_text(
+        '<scene version="3.0.0"><path value="assets"/>'
+        '<bsdf type="diffuse"><spectrum name="reflectance" filename="glass.spd"/></bsdf>'
+        '</scene>')
+    files = scene_files(tmp_path / "scene2.xml")
+    assert [(f.role, f.path) for f in files] == [("spectrum", str(tmp_path / "assets" / "glass.spd"))]
+
+
+def test_include_cycle_is_a_clear_error(tmp_path):
+    from episcatter.scene_files import scene_files
+
+    (tmp_path / "a.xml").write_text('<scene version="3.0.0"><include filename="a.xml"/></scene>')
+    with pytest.raises(ValueError, match="include"):
+        scene_files(tmp_path / "a.xml")
+
+
+def test_editing_a_loaded_mesh_misses_the_cache(cache, tmp_path):
+    scene = _scene_with_mesh(tmp_path)
+    _, first = reference.render_reference(scene, TINY, spp=2, chunk=1, progress=False)
+    assert not first["cached"]
+    # same bytes written again: a hit
+    (tmp_path / "meshes" / "blocker.obj").write_text(QUAD_OBJ)
+    _, again = reference.render_reference(scene, TINY, spp=2, chunk=1, progress=False)
+    assert again["cached"] and again["path"] == first["path"]
+    # the blocker moved up: the key changes, the reference is rendered anew
+    (tmp_path / "meshes" / "blocker.obj").write_text(QUAD_OBJ.replace("0.5", "0.7"))
+    _, edited = reference.render_reference(scene, TINY, spp=2, chunk=1, progress=False)
+    assert not edited["cached"] and edited["path"] != first["path"]
+    assert reference.find_cached_reference(scene, TINY) == edited["path"]
+    # the included XML counts too
+    inc = tmp_path / "parts" / "sphere.xml"
+    inc.write_text(inc.read_text().replace('radius" value="1"', 'radius" value="0.9"'))
+    assert reference.reference_key(scene, TINY) != edited["scene_key"]
+
+
+def test_scene_without_files_keeps_its_key():
+    # the shipped references of file-free scenes keep their names
+    import scenes
+    assert reference.reference_key(scenes.path("beam"), {"res_x": 48, "res_y": 36}) == \
+        "dd03c18e6c6b3ce3"
+
+
+# --------------------------------------------------------------------------
+# Chunks are stored as they finish; an interrupted reference resumes (issue 17)
+# --------------------------------------------------------------------------
+
+class Interrupt(KeyboardInterrupt):
+    """Raised by an on_chunk hook to stop a render as Ctrl-C would."""
+
+
+def stop_after(n):
+    def hook(done, total):
+        if done >= n:
+            raise Interrupt(f"{done} of {total}")
+    return hook
+
+
+def test_interrupted_reference_resumes_with_the_missing_chunks(cache):
+    args = dict(spp=16, chunk=2, progress=False)      # 8 chunks
+    with pytest.raises(Interrupt):
+        reference.render_reference(SCENE, TINY, on_chunk=stop_after(3), **args)
+    path = reference.reference_path(SCENE, TINY, 16)
+    assert not os.path.exists(path)
+    store = reference.ChunkStore(reference.chunk_folder(path))
+    assert len(store.stored(list(enumerate(reference.chunk_plan(16, 2))))) == 3
+
+    rgb, info = reference.render_reference(SCENE, TINY, **args)
+    assert (info["chunks_rendered"], info["chunks_resumed"]) == (5, 3)
+    assert [c["run"] for c in info["chunks"]].count("earlier") == 3
+    assert [c["seed"] for c in info["chunks"]] == info["seeds"] == list(range(8))
+    assert not os.path.exists(reference.chunk_folder(path))     # removed once merged
+
+    fresh, again = reference.render_reference(SCENE, TINY, force=True, **args)
+    assert again["chunks_rendered"] == 8
+    assert np.array_equal(rgb, fresh)
+
+
+def test_merge_is_in_chunk_order():
+    rng = np.random.default_rng(1)
+    images = [rng.random((3, 4, 3), dtype=np.float32) for _ in range(6)]
+    sizes = [3, 3, 2, 2, 2, 2]
+    a, b, var = reference.merge_chunks(images, sizes)
+    np.testing.assert_allclose(a, sum(i * n for i, n in zip(images[0::2], sizes[0::2])) / 7, rtol=1e-6)
+    np.testing.assert_allclose(b, sum(i * n for i, n in zip(images[1::2], sizes[1::2])) / 7, rtol=1e-6)
+    assert var.shape == a.shape and np.all(var >= 0)
+
+
+def test_a_process_seeing_other_files_refuses_to_render(tmp_path):
+    scene = _scene_with_mesh(tmp_path)
+    key = reference.reference_key(scene, TINY)
+    job = reference.ChunkJob(scene, tuple(sorted((k, str(v)) for k, v in TINY.items())),
+                             "volpath", None, key)
+    assert reference.render_chunk(job, (0, 1))["image"].shape == (12, 16, 3)
+    (tmp_path / "meshes" / "blocker.obj").write_text(QUAD_OBJ.replace("0.5", "0.6"))
+    stale = reference.ChunkJob(job.scene_path, job.defines, "volpath", None, key + "x")
+    with pytest.raises(ValueError, match="files differ"):
+        reference.render_chunk(stale, (0, 1))
+
+
+def test_cli_ctrl_c_says_how_to_resume(monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cmd_reference, "render_reference", interrupted)
+    from episcatter import cli
+    assert cli.main(["reference", SCENE, "--no-progress"]) == 130
+    assert "run the same command again" in capsys.readouterr().err
