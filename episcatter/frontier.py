@@ -305,7 +305,10 @@ def make_reference(scene_path: str, defines: dict, convention: str, progress: bo
                                    steps=steps, progress=progress)
     elif convention == "antialiased":
         spp = int(spp or ANTIALIASED_REFERENCE_SPP)
-        _, info = render_reference(scene_path, defines, spp=spp, chunk=max(1, spp // 8),
+        if spp < 8:
+            raise ValueError(f"antialiased reference spp={spp}: use >= 8 (chunks of >= 4 "
+                             "jittered rays; a 1-spp chunk samples the pixel centre)")
+        _, info = render_reference(scene_path, defines, spp=spp, chunk=max(4, spp // 8),
                                    kind="exact", steps=steps, progress=progress)
     else:
         raise ValueError(f"convention {convention!r} is not one of {CONVENTIONS}.")
@@ -437,3 +440,28 @@ def summarize_times(first_s: float, times: list, stage_runs: list) -> dict:
     if stages:
         out.update(capture_times(stages))
     return out
+
+
+# --------------------------------------------------------------------------
+# Image sizes per budget and convention
+# --------------------------------------------------------------------------
+
+#: (width, height) per budget and convention: the antialiased convention
+#: renders many jittered rays per pixel (and volpath), hence smaller images
+SIZES = {"quick": {"pixel_centre": (640, 480), "antialiased": (160, 120)},
+         "full": {"pixel_centre": (1280, 960), "antialiased": (320, 240)}}
+
+
+def defines_for(budget: str, defines: dict | None = None, sizes: dict | None = None):
+    """``defines_of(scene, convention)`` for :func:`make_tasks`: the suite's
+    ``res_x``/``res_y`` of :data:`SIZES` (``sizes`` overrides per
+    convention) plus the fixed ``defines``."""
+    if budget not in SIZES:
+        raise ValueError(f"budget {budget!r} is not one of {BUDGETS}.")
+    table = {**SIZES[budget], **(sizes or {})}
+
+    def defines_of(scene, convention):
+        w, h = table[convention]
+        return {**{k: str(v) for k, v in (defines or {}).items()},
+                "res_x": str(int(w)), "res_y": str(int(h))}
+    return defines_of
