@@ -71,15 +71,22 @@ def grid(**axes) -> list[dict]:
 
 def _raymarch_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
-        steps = [64, 256, 1024] if budget == "quick" else [32, 64, 128, 256, 512, 1024]
-        maps = [1024, 4096] if budget == "quick" else [512, 1024, 2048, 4096]
-        return (grid(visibility=["shadowmap"], steps=steps, shadowmap_resolution=maps)
+        if budget == "quick":
+            return (grid(visibility=["shadowmap"], steps=[64, 256, 1024],
+                         shadowmap_resolution=[1024, 2048])
+                    + grid(visibility=["exact"], steps=[64, 256]))
+        steps = [32, 64, 128, 256, 512, 1024]
+        return (grid(visibility=["shadowmap"], steps=steps + [2048],
+                     shadowmap_resolution=[512, 1024, 2048, 4096])
                 + grid(visibility=["exact"], steps=steps))
-    spp = [1, 4, 16] if budget == "quick" else [1, 4, 16, 64]
-    steps = [64, 256] if budget == "quick" else [64, 256, 1024]
-    return (grid(visibility=["shadowmap"], steps=steps, shadowmap_resolution=[2048],
+    if budget == "quick":
+        return (grid(visibility=["shadowmap"], steps=[64, 256], shadowmap_resolution=[2048],
+                     jitter=[True], spp=[1, 4, 16])
+                + grid(visibility=["exact"], steps=[128], jitter=[True], spp=[1, 4, 16]))
+    spp = [1, 4, 16, 64]
+    return (grid(visibility=["shadowmap"], steps=[64, 256, 1024], shadowmap_resolution=[2048],
                  jitter=[True], spp=spp)
-            + grid(visibility=["exact"], steps=steps, jitter=[True], spp=spp))
+            + grid(visibility=["exact"], steps=[64, 256, 1024], jitter=[True], spp=spp))
 
 
 def _tree_grid(budget: str, convention: str) -> list[dict]:
@@ -90,8 +97,9 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
                     + grid(slice_spacing=[1.0, 2.0], prefilter=[1]))
         return grid(slice_spacing=[0.5, 1.0, 2.0, 4.0], light_rays=[0, 256, 512],
                     prefilter=[1, 4], slice_interpolation=[True, False])
-    spp = [1, 4, 16] if budget == "quick" else [1, 4, 16, 64]
-    return grid(slice_spacing=[1.0, 2.0, 4.0], spp=spp)
+    if budget == "quick":
+        return grid(slice_spacing=[1.0, 2.0], spp=[1, 4, 16])
+    return grid(slice_spacing=[1.0, 2.0, 4.0], spp=[1, 4, 16, 64])
 
 
 def _fourier_grid(budget: str, convention: str) -> list[dict]:
@@ -100,14 +108,14 @@ def _fourier_grid(budget: str, convention: str) -> list[dict]:
             return grid(coefficients=[16, 32, 64, 128], weights=["reference_ray", "exact"])
         return grid(coefficients=[16, 32, 64, 128], light_rays=[0, 512],
                     weights=["average", "reference_ray", "exact"])
-    spp = [1, 4, 16] if budget == "quick" else [1, 4, 16, 64]
-    return grid(coefficients=[32, 128], weights=["exact"], spp=spp)
+    return grid(coefficients=[32, 128], weights=["exact"],
+                spp=[1, 4] if budget == "quick" else [1, 4, 16])
 
 
 def _volpath_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
         return []   # a Monte Carlo estimator has no pixel-centre image
-    return grid(spp=[16, 64, 256, 1024] if budget == "quick" else [16, 64, 256, 1024, 4096])
+    return grid(spp=[16, 64, 256] if budget == "quick" else [16, 64, 256, 1024, 4096])
 
 
 #: method name -> grid function (budget, convention) -> list of settings

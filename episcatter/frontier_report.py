@@ -59,32 +59,37 @@ def run_frontier(scenes, methods, budget="quick", conventions=fr.CONVENTIONS, ou
     defines_of = defines_of or (lambda scene, conv: {})
     scenes = [os.path.abspath(s) for s in scenes]
     refs = {}
-    for scene in scenes:
-        for conv in conventions:
-            refs[(scene, conv)] = fr.make_reference(scene, defines_of(scene, conv), conv,
-                                                    progress=progress, spp=reference_spp)
-    tasks = fr.make_tasks(scenes, methods, budget, conventions, defines_of, refs, repeats, grids)
     settings = {"scenes": scenes, "methods": list(methods), "budget": budget,
                 "conventions": list(conventions), "repeats": repeats,
                 "levels": list(fr.LEVELS), "baseline": fr.BASELINE,
                 "sizes": {c: defines_of(scenes[0], c) for c in conventions} if scenes else {},
-                "references": {f"{os.path.basename(s)}:{c}": p for (s, c), p in refs.items()},
-                "reference_steps": fr.REFERENCE_STEPS,
+                "references": refs, "reference_steps": fr.REFERENCE_STEPS,
+                "antialiased_reference_spp": reference_spp or fr.ANTIALIASED_REFERENCE_SPP,
                 "metric": "episcatter.metrics.scale_free_relmse (eps=1e-2)",
                 "timing": "warm-up render, then the median of `repeats` interleaved "
                           "renders (dr.eval + dr.sync_thread) per setting"}
-    if map_fn is not None:
-        rows = [r for part in map_fn(fr.run_task, tasks) for r in part]
-    else:
-        bar = tqdm(total=sum(len(t["settings"]) for t in tasks), desc="frontier", unit="run",
-                   disable=not progress)
-        rows = []
-        for i, t in enumerate(tasks):
-            bar.set_postfix_str(f"{os.path.basename(t['scene'])} {t['convention']} {t['method']}")
-            rows += fr.run_task(t, progress=bar.update)
-            if out_dir and i + 1 < len(tasks) and tasks[i + 1]["scene"] != t["scene"]:
-                write_all(out_dir, rows, {**settings, "partial": True})   # checkpoint
-        bar.close()
+    rows = []
+    for conv in conventions:          # convention-major: each finished one is a full table
+        for scene in scenes:          # references first (cached), then the tasks
+            path = fr.make_reference(scene, defines_of(scene, conv), conv, progress=progress,
+                                     spp=reference_spp)
+            refs[f"{os.path.basename(scene)}:{conv}"] = path
+        tasks = fr.make_tasks(scenes, methods, budget, (conv,), defines_of,
+                              {(s, conv): refs[f"{os.path.basename(s)}:{conv}"] for s in scenes},
+                              repeats, grids)
+        if map_fn is not None:
+            rows += [r for part in map_fn(fr.run_task, tasks) for r in part]
+        else:
+            bar = tqdm(total=sum(len(t["settings"]) for t in tasks), desc=f"frontier {conv}",
+                       unit="run", disable=not progress)
+            for i, t in enumerate(tasks):
+                bar.set_postfix_str(f"{os.path.basename(t['scene'])} {t['method']}")
+                rows += fr.run_task(t, progress=bar.update)
+                if out_dir and i + 1 < len(tasks) and tasks[i + 1]["scene"] != t["scene"]:
+                    write_all(out_dir, rows, {**settings, "partial": True})   # checkpoint
+            bar.close()
+        if out_dir:
+            write_all(out_dir, rows, {**settings, "partial": conv != conventions[-1]})
     if out_dir:
         write_all(out_dir, rows, settings)
     return rows

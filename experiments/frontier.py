@@ -46,6 +46,8 @@ def parse(argv=None):
                    help="jittered rays per pixel of the antialiased reference")
     p.add_argument("--volpath-spp", type=int, default=4096,
                    help="volpath samples per pixel of the antialiased-reference check (0: skip)")
+    p.add_argument("--size", default=None, metavar="WxH", help="pixel-centre size (default: the budget's)")
+    p.add_argument("--aa-size", default=None, metavar="WxH", help="antialiased size (default: the budget's)")
     p.add_argument("--quick", action="store_true", help="tiny smoke run (tests)")
     p.add_argument("--out", default=None)
     return p.parse_args(argv)
@@ -75,6 +77,7 @@ def main(argv=None) -> int:
     import scenes as suite
 
     from episcatter import frontier as fr
+    from episcatter.cmd_frontier import parse_size
     from episcatter.frontier_report import run_frontier, write_rows_csv
 
     args = parse(argv)
@@ -83,7 +86,12 @@ def main(argv=None) -> int:
     repeats = args.repeats or (1 if args.quick else 3)
     out = args.out or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                    "results", NAME, "tiny" if args.quick else args.budget)
-    defines_of = fr.defines_for(args.budget, sizes=TINY_SIZES if args.quick else None)
+    sizes = dict(TINY_SIZES) if args.quick else {}
+    if args.size:
+        sizes["pixel_centre"] = parse_size(args.size)
+    if args.aa_size:
+        sizes["antialiased"] = parse_size(args.aa_size)
+    defines_of = fr.defines_for(args.budget, sizes=sizes)
     methods = args.methods or sorted(fr.GRIDS)
     conventions = tuple(args.conventions or fr.CONVENTIONS)
     run_frontier(paths, methods, args.budget, conventions, out, defines_of, repeats,
