@@ -100,16 +100,11 @@ def run_frontier(scenes, methods, budget="quick", conventions=fr.CONVENTIONS, ou
 # --------------------------------------------------------------------------
 
 def _plain(value):
-    """Strict-JSON value (non-finite floats -> None, NumPy -> Python)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
+    """Strict-JSON copy of ``value``: NumPy scalars become Python numbers,
+    NaN and infinities become None (``json.loads``' ``parse_constant`` sees
+    exactly those bare tokens, never text inside strings)."""
+    text = json.dumps(value, default=lambda o: o.item() if isinstance(o, np.generic) else str(o))
+    return json.loads(text, parse_constant=lambda name: None)
 
 
 def write_rows_csv(path, rows) -> None:

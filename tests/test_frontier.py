@@ -323,3 +323,12 @@ def test_settings_for_budget_on_a_small_scene(make_scene):
     assert tight["slice_spacing"] <= loose["slice_spacing"]
     assert fr.settings_for_budget(scene, "raymarch", 1e-6)["steps"] >= \
         fr.settings_for_budget(scene, "raymarch", 1e-2)["steps"]
+
+
+def test_report_json_is_strict_and_keeps_strings():
+    from episcatter.frontier_report import _plain
+
+    doc = _plain({"a": math.nan, "b": [np.float32(1.5), np.int64(3), math.inf],
+                  "c": "NaN in a message", "d": (1, 2)})
+    assert doc == {"a": None, "b": [1.5, 3, None], "c": "NaN in a message", "d": [1, 2]}
+    json.dumps(doc, allow_nan=False)
