@@ -74,6 +74,7 @@ def _raymarch_grid(budget: str, convention: str) -> list[dict]:
         if budget == "quick":
             return (grid(visibility=["shadowmap"], steps=[64, 256, 1024],
                          shadowmap_resolution=[1024, 2048])
+                    + grid(visibility=["shadowmap"], steps=[2048], shadowmap_resolution=[2048])
                     + grid(visibility=["exact"], steps=[64, 256]))
         steps = [32, 64, 128, 256, 512, 1024]
         return (grid(visibility=["shadowmap"], steps=steps + [2048],
@@ -92,9 +93,10 @@ def _raymarch_grid(budget: str, convention: str) -> list[dict]:
 def _tree_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
         if budget == "quick":
-            return (grid(slice_spacing=[0.5, 1.0, 2.0, 4.0], slice_interpolation=[True, False])
-                    + grid(slice_spacing=[1.0], light_rays=[128, 256], prefilter=[4])
-                    + grid(slice_spacing=[1.0, 2.0], prefilter=[1]))
+            return (grid(slice_spacing=[0.5, 1.0, 2.0], light_rays=[0, 512, 1024])
+                    + grid(slice_spacing=[4.0], light_rays=[0])
+                    + grid(slice_spacing=[1.0, 2.0, 4.0], slice_interpolation=[False])
+                    + grid(slice_spacing=[2.0], prefilter=[1]))
         return grid(slice_spacing=[0.5, 1.0, 2.0, 4.0], light_rays=[0, 256, 512],
                     prefilter=[1, 4], slice_interpolation=[True, False])
     if budget == "quick":
@@ -105,7 +107,8 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
 def _fourier_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
         if budget == "quick":
-            return grid(coefficients=[16, 32, 64, 128], weights=["reference_ray", "exact"])
+            return (grid(coefficients=[16, 32, 64, 128], weights=["reference_ray", "exact"])
+                    + grid(coefficients=[128], weights=["exact"], light_rays=[512, 1024]))
         return grid(coefficients=[16, 32, 64, 128], light_rays=[0, 512],
                     weights=["average", "reference_ray", "exact"])
     return grid(coefficients=[32, 128], weights=["exact"],
