@@ -48,6 +48,9 @@ def parse(argv=None):
                    help="volpath samples per pixel of the antialiased-reference check (0: skip)")
     p.add_argument("--size", default=None, metavar="WxH", help="pixel-centre size (default: the budget's)")
     p.add_argument("--aa-size", default=None, metavar="WxH", help="antialiased size (default: the budget's)")
+    p.add_argument("--merge", nargs="+", default=None, metavar="DIR",
+                   help="instead of sweeping, merge the runs.json of these output folders "
+                        "(e.g. one per convention, run side by side) into --out")
     p.add_argument("--quick", action="store_true", help="tiny smoke run (tests)")
     p.add_argument("--out", default=None)
     return p.parse_args(argv)
@@ -73,6 +76,33 @@ def aa_check(scenes, defines_of, ref_spp, volpath_spp, progress) -> list[dict]:
     return rows
 
 
+def merge(folders, out) -> int:
+    """Write the reports of the runs of several sweeps (their runs.json)
+    into ``out``, as if they were one sweep; aa_check.csv files are kept."""
+    import json
+    import shutil
+
+    from episcatter.frontier_report import write_all
+
+    if not out:
+        raise ValueError("--merge needs --out DIR for the merged reports")
+    rows, parts = [], []
+    for folder in folders:
+        with open(os.path.join(folder, "runs.json")) as f:
+            doc = json.load(f)
+        rows += doc["rows"]
+        parts.append({"folder": folder, "settings": doc["settings"],
+                      "environment": doc["environment"]})
+        check = os.path.join(folder, "aa_check.csv")
+        if os.path.isfile(check) and os.path.abspath(folder) != os.path.abspath(out):
+            os.makedirs(out, exist_ok=True)
+            shutil.copy(check, os.path.join(out, "aa_check.csv"))
+    write_all(out, rows, {"merged_from": parts})
+    with open(os.path.join(out, "table.md")) as f:
+        print(f.read())
+    return 0
+
+
 def main(argv=None) -> int:
     import scenes as suite
 
@@ -81,6 +111,8 @@ def main(argv=None) -> int:
     from episcatter.frontier_report import run_frontier, write_rows_csv
 
     args = parse(argv)
+    if args.merge:
+        return merge(args.merge, args.out)
     names = args.scenes or list(suite.SUITE)
     paths = [suite.path(n) for n in names]
     repeats = args.repeats or (1 if args.quick else 3)

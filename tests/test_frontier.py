@@ -240,6 +240,11 @@ def test_experiment_tiny_run_writes_frontiers_speedups_floor_and_plots(tmp_path,
     aa_ref = [p for k, p in doc["settings"]["references"].items() if k.endswith("antialiased")][0]
     a, b = load_halves(aa_ref)
     assert np.abs(a - b).max() > 0
+    # merging the sweep's own runs.json reproduces its speedups
+    merged = tmp_path / "merged"
+    assert exp.main(["--merge", str(out), "--out", str(merged)]) == 0
+    assert read_csv(merged / "speedups.csv") == speedups
+    assert (merged / "aa_check.csv").is_file()
 
 
 @pytest.mark.slow
