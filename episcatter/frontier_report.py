@@ -12,6 +12,7 @@ log-log time-vs-error plot per scene (``frontier_<scene>.png``).
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 import os
@@ -142,9 +143,15 @@ def floor_rows(rows, level: float = 1e-4) -> list[dict]:
     return out
 
 
+#: the Monte Carlo ground truth, a second baseline where it was swept (end-to-end times only)
+VOLPATH = "volpath"
+
+
 def speedup_rows(rows) -> list[dict]:
-    """:func:`episcatter.frontier.speedup_table` for both time keys."""
-    return [s for key in TIME_KEYS for s in fr.speedup_table(rows, time_key=key)]
+    """:func:`episcatter.frontier.speedup_table` over the ``raymarch``
+    frontier for both time keys, and over ``volpath``'s (end-to-end)."""
+    return ([s for key in TIME_KEYS for s in fr.speedup_table(rows, time_key=key)]
+            + fr.speedup_table(rows, baseline=VOLPATH, time_key="time_s"))
 
 
 def _fmt(v, digits=3):
@@ -154,28 +161,29 @@ def _fmt(v, digits=3):
 
 
 def markdown_report(rows, speedups, floors) -> str:
-    """Speedup tables (one per convention and time key: method x scene at
-    each level) and the floor table, as GitHub markdown."""
+    """Speedup tables (one per convention, time key and baseline: method x
+    scene at each level) and the floor table, as GitHub markdown."""
     lines = []
     scenes = sorted({r["scene"] for r in rows})
-    for conv in fr.CONVENTIONS:
-        for key, what in TIME_KEYS.items():
-            sel = [s for s in speedups if s["convention"] == conv and s["time_key"] == key]
-            if not sel:
-                continue
-            lines += [f"### Speedup over `{fr.BASELINE}` frontier, {conv.replace('_', ' ')} "
-                      f"convention, {what} time", "",
-                      "| method | level | " + " | ".join(s.replace(".xml", "") for s in scenes) + " |",
-                      "|---|---|" + "---|" * len(scenes)]
-            for method in sorted({s["method"] for s in sel}):
-                for level in fr.LEVELS:
-                    cells = []
-                    for scene in scenes:
-                        hit = [s for s in sel if s["scene"] == scene and s["method"] == method
-                               and s["level"] == level]
-                        cells.append(fr.speedup_text(hit[0]) if hit else "-")
-                    lines.append(f"| {method} | {level:g} | " + " | ".join(cells) + " |")
-            lines.append("")
+    for conv, (key, what), base in itertools.product(fr.CONVENTIONS, TIME_KEYS.items(),
+                                                     (fr.BASELINE, VOLPATH)):
+        sel = [s for s in speedups if s["convention"] == conv and s["time_key"] == key
+               and s["baseline"] == base]
+        if not sel:
+            continue
+        lines += [f"### Speedup over `{base}` frontier, {conv.replace('_', ' ')} "
+                  f"convention, {what} time", "",
+                  "| method | level | " + " | ".join(s.replace(".xml", "") for s in scenes) + " |",
+                  "|---|---|" + "---|" * len(scenes)]
+        for method in sorted({s["method"] for s in sel}):
+            for level in fr.LEVELS:
+                cells = []
+                for scene in scenes:
+                    hit = [s for s in sel if s["scene"] == scene and s["method"] == method
+                           and s["level"] == level]
+                    cells.append(fr.speedup_text(hit[0]) if hit else "-")
+                lines.append(f"| {method} | {level:g} | " + " | ".join(cells) + " |")
+        lines.append("")
     if floors:
         lines += ["### Captures (the floor) at the frontier point reaching relMSE 1e-4",
                   "(fastest setting reaching it, else the most accurate: `*`)", "",
