@@ -337,3 +337,16 @@ def test_report_json_is_strict_and_keeps_strings():
                   "c": "NaN in a message", "d": (1, 2)})
     assert doc == {"a": None, "b": [1.5, 3, None], "c": "NaN in a message", "d": [1, 2]}
     json.dumps(doc, allow_nan=False)
+
+
+@pytest.mark.slow
+def test_error_budget_experiment_tiny_run(tmp_path, cache):
+    from experiments import error_budget
+
+    out = tmp_path / "eb"
+    assert error_budget.main(["--quick", "--fit", str(tmp_path / "none.json"), "--out", str(out),
+                              "--methods", "raymarch"]) == 0
+    rows = read_csv(out / "choices.csv")
+    assert [float(r["budget"]) for r in rows] == list(fr.LEVELS)
+    assert all(float(r["relmse"]) > 0 and float(r["time_s"]) > 0 for r in rows)
+    assert "relMSE <= 2x budget" in (out / "table.md").read_text()
