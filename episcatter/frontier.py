@@ -516,7 +516,9 @@ class BudgetRule:
 
 #: per method: slice spacing for the tree (relMSE grows with it), steps for
 #: the exact marcher, coefficients for the filter (errors fall with them);
-#: exponents fitted on the suite's frontier data (README, results/frontier)
+#: the exponents here are the textbook orders (midpoint steps: error ~ 1/n,
+#: relMSE ~ n^-2); ``experiments.error_budget`` refits them from frontier
+#: runs with :func:`fit_exponent`
 BUDGET_RULES = {
     "epipolar_tree": BudgetRule("slice_spacing", 4.0, 2.0, 2.0, (0.25, 4.0)),
     "raymarch": BudgetRule("steps", 32, 64, -2.0, (16, 8192), base={"visibility": "exact"},
