@@ -21,6 +21,7 @@ COMMANDS = {
     "compare": "error metrics of a test image against a reference",
     "bench": "time and error of integrators on scenes, with parameter sweeps",
     "epipolar": "epipolar geometry diagnostics of a scene",
+    "frontier": "time-vs-error frontiers of every method and speedups read off them",
 }
 
 
