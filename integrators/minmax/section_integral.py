@@ -163,7 +163,7 @@ def phase_of_phi(params, phi) -> mi.Color3f:
 
 
 def _phase_numpy(params, phi: np.ndarray) -> np.ndarray:
-    v = phase_of_phi(params, mi.Float(phi.astype(np.float32)))
+    v = phase_of_phi(params, mi.Float(phi.astype(np.float32))) + dr.zeros(mi.Color3f, len(phi))
     return np.stack([np.array(v[c], dtype=np.float64) for c in range(3)], axis=1)
 
 
