@@ -7,6 +7,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from rectify import ring_mask
+
 from .capture import capture_shadow_map
 from .minmax.integrate import integrate_samples
 from .minmax.light_rays import slice_light_rays, texel_count
@@ -88,11 +90,11 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     ``fixup_threshold``         bilateral weight sum below which a pixel is
                                 re-marched (default 0.05)
     ``fixup_steps``             steps of the fix-up march (default 128)
+    ``ring_degrees``            pixels this close to the epipole join the
+                                fix-up (default 1; 0: none, as the talk)
     ==========================  ================================================
 
-    One camera sample per pixel centre (the talk's convention); the light
-    must lie inside the medium box for point/spot lights (the table assumes
-    the whole light path is in the medium).  ``integrator.stats`` holds the
+    One camera sample per pixel centre (the talk's convention).  ``integrator.stats`` holds the
     counts of the last render (integration samples, fix-up pixels, mean
     march steps).
     """
@@ -128,6 +130,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.depth_sigma = read_number(props, "depth_sigma", 0.1, minimum=1e-6)
         self.fixup_threshold = read_number(props, "fixup_threshold", 0.05, minimum=0.0)
         self.fixup_steps = read_number(props, "fixup_steps", 128, minimum=1, integer=True)
+        self.ring_degrees = read_number(props, "ring_degrees", 1.0, minimum=0.0, maximum=90.0)
         self.explicit = {k for k in ("slices", "samples", "shadowmap_resolution", "light_rays")
                          if k in props}
         self.stats = {}
@@ -202,8 +205,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
             L_pix, weight = unwarp(samples, per_sample, cap.d, self.depth_sigma)
             keep.append(L_pix)
         with self.stage("fixup") as keep:
+            ring = ring_mask(samples.frame, self.ring_degrees) if self.ring_degrees > 0 else None
             out = fixup(params, cap, L_pix, weight, self.fixup_threshold, self.fixup_steps,
-                        shadow_map)
+                        shadow_map, ring)
             keep.append(out.L)
         n_int = int(dr.count(flags)[0])
         self.stats = dict(settings=s, slices=samples.slices.count, samples=samples.size,

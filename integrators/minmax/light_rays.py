@@ -12,7 +12,8 @@ Per texel: the depth ``z_b`` of the first blocker along the light ray
 (directional: from a plane beyond the scene, ``u_top − u``; point/spot: the
 distance from the light) and the light's colour along it (directional: 1;
 point/spot: Mitsuba's intensity × spot falloff × projected texture at unit
-distance).  Sources:
+distance, and the light-side entry factor of a light outside the box,
+:func:`texel_colour`).  Sources:
 
 * ``traced``: each texel's light ray traced with Mitsuba (exact blockers);
 * ``resampled``: read from the classic shadow map; each texel stores the
@@ -32,7 +33,7 @@ import numpy as np
 from rectify import EpipolarFrame, light_coords_to_world, view_to_light
 
 from ..epipolar_local_light import cone_interval
-from ..light_transport import first_blocker, point, sample_light
+from ..light_transport import color, first_blocker, point, sample_light, segment_box
 from .slices_and_samples import EpipolarSamples
 
 SOURCES = ("traced", "resampled")
@@ -120,13 +121,25 @@ def texel_rays(params, frame: EpipolarFrame, alpha, gamma, u_top: float):
     return mi.Point3f(p_l) + 0.0 * w, w
 
 
+#: largest light-side exponent σt·r_in a texel's colour may carry (the
+#: section integral's e^{-σt r} then makes the product ~e^{-80} or smaller)
+MAX_ENTRY_EXPONENT = 80.0
+
+
 def texel_colour(params, frame: EpipolarFrame, origin, w):
-    """Light colour along texel light rays (see the module docstring)."""
+    """Light colour along texel light rays (see the module docstring).
+
+    Point/spot: Mitsuba's intensity·falloff·texture at unit distance, times
+    ``e^{σt r_in}`` for a light outside the medium box (``r_in``: distance
+    from the light to where its ray enters the box), so that with the
+    section integral's ``e^{−σt r}`` the light-side transmittance is
+    ``e^{−σt (r − r_in)}``, the path inside the box."""
     if frame.is_directional:
         return dr.full(mi.Color3f, 1.0, dr.width(origin.x))
-    # Mitsuba's point/spot emitters deliver intensity·falloff·texture / r²: read at r = 1
     _, _, L = sample_light(params, origin + w)
-    return L
+    _, t_in, _ = segment_box(params, origin, w, dr.full(mi.Float, dr.inf, dr.width(w.x)))
+    sigma_t = color(params.medium.sigma_t)
+    return L * dr.exp(dr.minimum(sigma_t * t_in, MAX_ENTRY_EXPONENT))
 
 
 def slice_light_rays(params, samples: EpipolarSamples, n: int, source: str = "traced",

@@ -10,7 +10,11 @@ formula).  Pixels whose weight sum falls below ``fixup_threshold`` have no
 sample at their depth (a foreground edge between slices, a thin object):
 the fix-up pass ray-marches them on their own (talk: "using fewer steps and
 no min/max optimization"), with exact visibility for traced blockers and
-the shadow map for resampled ones.
+the shadow map for resampled ones.  Beyond the talk, the pixels within
+``ring_degrees`` of the epipole (Baran 2010 §6's ring, :func:`rectify.ring_mask`)
+join the fix-up: there the in-scattering of a point light peaks within a
+pixel and all slices meet, so no interpolation reproduces the pixel-centre
+value.
 """
 from __future__ import annotations
 
@@ -58,10 +62,14 @@ def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
 
 
 def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
-          threshold: float, steps: int, shadow_map=None) -> Unwarped:
-    """Re-march the pixels whose bilateral weight is below ``threshold``
-    (camera samples of ``cap``: one per pixel, in pixel order)."""
-    idx = dr.compress(weight < threshold)
+          threshold: float, steps: int, shadow_map=None, also=None) -> Unwarped:
+    """Re-march the pixels whose bilateral weight is below ``threshold``,
+    and those of the mask ``also`` (camera samples of ``cap``: one per
+    pixel, in pixel order)."""
+    todo = weight < threshold
+    if also is not None:
+        todo |= also
+    idx = dr.compress(todo)
     L = mi.Color3f(L_pixel)
     if dr.width(idx):
         sub = subset_capture(cap, idx)
