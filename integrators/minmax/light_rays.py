@@ -180,7 +180,9 @@ CELL_PROBES = 3
 def cell_depth_bounds(frame, shadow_map, alpha, gamma, delta, k, u_top, o, w):
     """Conservative (min, max) blocker depth of the shadow-map texels that
     PCF may read for any point of a texel cell (probes along the cell,
-    each with its 3×3 neighbourhood, :meth:`ShadowMap.depth_bounds`)."""
+    each bounding the taps within half a shadow-map texel,
+    :meth:`ShadowMap.depth_bounds`; conservative while a cell spans at most
+    two shadow-map texels, which the default ``light_rays`` ensures)."""
     dg = dr.gather(mi.Float, mi.Float(delta.astype(np.float32)), k)
     z_lo = dr.full(mi.Float, dr.inf, dr.width(gamma))
     z_hi = dr.full(mi.Float, -dr.inf, dr.width(gamma))

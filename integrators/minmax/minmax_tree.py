@@ -17,7 +17,7 @@ ends) lies no deeper than the blocker, ``z ≤ z_b + bias``, and then adds
 Traversal (talk, "Traversal optimization"): at texel ``i`` and level ``l``
 the node's sections are lit if the ray's largest depth at the node's first
 and last texel points is ≤ the node's min (and the node's colour is
-uniform), shadowed if the ray's smallest depth over them is > the node's max
+uniform to float32 rounding, ``COLOUR_TOLERANCE``), shadowed if the ray's smallest depth over them is > the node's max
 (or its colour is black); then the whole node is one section and the march
 moves past it, climbing while the new position is aligned to the next
 level; otherwise it descends.  Depth along a ray, as a function of the
@@ -43,6 +43,11 @@ import numpy as np
 from rectify import EpipolarFrame, ray_meeting_t, view_to_light
 
 from .light_rays import SliceLightRays
+
+
+#: a node's colour counts as uniform when its min and max agree to this
+#: relative tolerance (float32 rounding of Mitsuba's intensity / r² at r = 1)
+COLOUR_TOLERANCE = 1e-5
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,7 +216,7 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         z_lo, z_hi = dr.gather(mi.Float, tree.z_min, node), dr.gather(mi.Float, tree.z_max, node)
         c_lo, c_hi = dr.gather(mi.Color3f, tree.c_min, node), dr.gather(mi.Color3f, tree.c_max, node)
         r_lo, r_hi = depth_range(frame, rays, u_top, t_test(i), t_test(end - 1))
-        uniform = dr.all(c_lo == c_hi)
+        uniform = dr.all(c_hi - c_lo <= COLOUR_TOLERANCE * c_hi)
         black = dr.all(c_hi <= 0.0)
         lit = (r_hi <= z_lo + bias) & uniform & ~black
         dark = (r_lo > z_hi + bias) | black
@@ -250,15 +255,19 @@ def march_texels_reference(frame, z_b, colour, gamma_lo, delta, u_top, bias, bet
 
     def t_of(g):
         t, ok = ray_meeting_t_reference(frame, beta, g)
-        return min(max((t - t_near) if ok else np.inf, t_lo), t_hi)
+        t = float(np.asarray(t).reshape(-1)[0]) - t_near if bool(np.asarray(ok).reshape(-1)[0]) \
+            else np.inf
+        return min(max(t, t_lo), t_hi)
 
     def depth(t):
         _, u = view_to_light_reference(frame, alpha, beta, t_near + t)
+        u = float(np.asarray(u).reshape(-1)[0])
         return (u_top - u) if frame.is_directional else u
 
     hi = gamma_lo + n * delta
-    g_s = view_to_light_reference(frame, alpha, beta, t_near)[0]
-    g_e = view_to_light_reference(frame, alpha, beta, t_near + t_end)[0]
+    g_s = float(np.asarray(view_to_light_reference(frame, alpha, beta, t_near)[0]).reshape(-1)[0])
+    g_e = float(np.asarray(view_to_light_reference(frame, alpha, beta,
+                                                   t_near + t_end)[0]).reshape(-1)[0])
     t_lo, t_hi = 0.0, t_end
     if g_s < gamma_lo:
         t_lo = t_of(gamma_lo)

@@ -29,7 +29,9 @@ section adds ``colour · I(t_a, t_b)`` with ``I`` the unit-colour integral
   out analytically and the angle ``φ = atan(S/h)`` replaces ``S``, which
   keeps the table's dynamic range finite near the light.  :class:`PointTable`
   holds ``C`` on an ``(h, φ)`` grid (resolution a property) and reads it
-  bilinearly;
+  bilinearly; a section shorter than a few table cells in ``φ`` integrates
+  ``C``'s integrand by Simpson's rule instead (the difference of two nearby
+  reads is all interpolation error);
   :func:`point_table_reference` is the float64 quadrature it is tested
   against, :func:`point_section_reference` direct quadrature of ``I``.
 """
@@ -47,7 +49,7 @@ from ..light_transport import color, phase_eval, point
 #: |k·L| below which ∫ e^{-k s} ds uses its Taylor series
 SERIES_LIMIT = 1e-3
 #: fine quadrature points of the table's cumulative integral over φ
-TABLE_QUADRATURE = 8192
+TABLE_QUADRATURE = 16384
 
 
 def exp_segment(k, a, b):
@@ -162,7 +164,7 @@ def phase_of_phi(params, phi) -> mi.Color3f:
     return phase_eval(params, omega, wo)
 
 
-def _phase_numpy(params, phi: np.ndarray) -> np.ndarray:
+def phase_of_phi_numpy(params, phi: np.ndarray) -> np.ndarray:
     v = phase_of_phi(params, mi.Float(phi.astype(np.float32))) + dr.zeros(mi.Color3f, len(phi))
     return np.stack([np.array(v[c], dtype=np.float64) for c in range(3)], axis=1)
 
@@ -174,16 +176,19 @@ def point_table_reference(params, h: np.ndarray, phi: np.ndarray,
     π/2 down on ``n`` points, per channel."""
     sigma = np.asarray(params.medium.sigma_t, dtype=np.float64)
     grid = np.linspace(-math.pi / 2, math.pi / 2, n)
-    P = _phase_numpy(params, grid)                                    # (n, 3)
+    P = phase_of_phi_numpy(params, grid)                                    # (n, 3)
     # tan φ' + sec φ' = tan(φ'/2 + π/4) grows from 0 (φ' = -π/2) to ∞ (π/2)
     ts = np.tan(0.5 * grid[:-1] + 0.25 * math.pi)
+    h = np.asarray(h, dtype=np.float64)
     out = np.zeros((len(h), len(phi), 3))
-    for i, hi in enumerate(np.asarray(h, dtype=np.float64)):
-        for c in range(3):
-            q = np.append(P[:-1, c] * np.exp(-sigma[c] * hi * ts), 0.0)
-            seg = 0.5 * (q[1:] + q[:-1]) * np.diff(grid)
-            C = np.append(np.cumsum(seg[::-1])[::-1], 0.0)
-            out[i, :, c] = np.interp(phi, grid, C)
+    for c in range(3):
+        q = P[None, :-1, c] * np.exp(-sigma[c] * h[:, None] * ts[None, :])
+        q = np.concatenate([q, np.zeros((len(h), 1))], axis=1)          # Q(π/2) = 0
+        seg = 0.5 * (q[:, 1:] + q[:, :-1]) * np.diff(grid)[None]
+        C = np.concatenate([np.cumsum(seg[:, ::-1], axis=1)[:, ::-1], np.zeros((len(h), 1))],
+                           axis=1)
+        for i in range(len(h)):
+            out[i, :, c] = np.interp(phi, grid, C[i])
     return out
 
 
@@ -196,6 +201,12 @@ class PointTable:
     n_phi: int
     values: np.ndarray = field(repr=False)     # (n_h, n_phi, 3) float64
     texture: object = field(repr=False, default=None)
+    params: object = field(repr=False, default=None)   # for the phase function
+
+    @property
+    def cell(self) -> float:
+        """Node spacing in φ."""
+        return math.pi / (self.n_phi - 1)
 
     def lookup(self, h, phi) -> mi.Color3f:
         u = (dr.clip(phi * (1 / math.pi) + 0.5, 0.0, 1.0) * (self.n_phi - 1) + 0.5) / self.n_phi
@@ -214,7 +225,8 @@ def point_table(params, resolution: int, h_max: float | None = None) -> PointTab
     values = point_table_reference(params, h, phi)
     tex = mi.Texture2f(mi.TensorXf(values.astype(np.float32)), use_accel=False,
                        filter_mode=dr.FilterMode.Linear, wrap_mode=dr.WrapMode.Clamp)
-    return PointTable(h_max=float(h_max), n_h=n_h, n_phi=n_phi, values=values, texture=tex)
+    return PointTable(h_max=float(h_max), n_h=n_h, n_phi=n_phi, values=values, texture=tex,
+                      params=params)
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,6 +237,8 @@ class PointRay:
     t0: mi.Float
 
 
+#: sections shorter than this many table cells in φ use Simpson's rule
+SIMPSON_CELLS = 4.0
 #: largest exponent of e^{-σt t0} (its partner C then underflows anyway)
 MAX_EXPONENT = 80.0
 #: smallest h [relative to the scene size] a ray may pass the light at
@@ -244,9 +258,25 @@ def point_section(sigma_t: mi.Color3f, table: PointTable, ray: PointRay, t_a, t_
     phi_a = dr.atan2(t_a - ray.t0, ray.h)
     phi_b = dr.atan2(t_b - ray.t0, ray.h)
     C_a, C_b = table.lookup(ray.h, phi_a), table.lookup(ray.h, phi_b)
+    # sections shorter than a table cell: Simpson's rule on the integrand of C
+    # itself (the difference of two table reads would be all interpolation error)
+    short = (phi_b - phi_a) < SIMPSON_CELLS * table.cell
+    phi_m = 0.5 * (phi_a + phi_b)
+    simpson = (phi_b - phi_a) * (1.0 / 6.0) * (
+        integrand_of_c(table.params, sigma_t, ray.h, phi_a)
+        + 4.0 * integrand_of_c(table.params, sigma_t, ray.h, phi_m)
+        + integrand_of_c(table.params, sigma_t, ray.h, phi_b))
+    diff = dr.select(short, simpson, C_a - C_b)
     # a ray starting far past the light (t0 << 0) gets C ≈ 0: keep e^{-σt t0} finite
     scale = dr.exp(dr.minimum(-sigma_t * ray.t0, MAX_EXPONENT))
-    return scale * (C_a - C_b) / ray.h
+    return scale * diff / ray.h
+
+
+def integrand_of_c(params, sigma_t, h, phi) -> mi.Color3f:
+    """``f_p(φ) e^{-σt h (tan φ + sec φ)}``, the integrand of ``C``
+    (``tan φ + sec φ = tan(φ/2 + π/4)``)."""
+    ts = dr.minimum(dr.tan(0.5 * phi + 0.25 * math.pi), 1e30)
+    return phase_of_phi(params, phi) * dr.exp(-sigma_t * (h * ts))
 
 
 def point_section_reference(params, o, omega, t_a, t_b, n=20001) -> np.ndarray:
@@ -258,7 +288,7 @@ def point_section_reference(params, o, omega, t_a, t_b, n=20001) -> np.ndarray:
     r = np.linalg.norm(r_vec, axis=1)
     sin_phi = -(r_vec @ np.asarray(omega)) / r        # wo·ω = −sin φ (phase_of_phi)
     phi = np.arcsin(np.clip(sin_phi, -1, 1))
-    P = _phase_numpy(params, phi)
+    P = phase_of_phi_numpy(params, phi)
     sigma = np.asarray(params.medium.sigma_t, dtype=np.float64)
     f = P * np.exp(-sigma[None] * (t + r)[:, None]) / (r * r)[:, None]
     hstep = (t_b - t_a) / (n - 1)
