@@ -355,7 +355,8 @@ def test_tree_off_gives_the_same_image(make_scene):
 def test_no_nan_on_stress_cases():
     from experiments import stability as st
     s = st.settings_for(False)
-    s["res"] = (32, 24)
+    s.update(res=(32, 24), sigma_t=[1e-4, 10.0, 100.0], scales=[0.01, 1e4],
+             grazing_sigma_t=[10.0])
     cases = st.all_cases(s)
     for case in cases:
         scene = mi.load_dict(st.stress_scene(case["light"], case["sigma_t"], case["scale"],

@@ -52,15 +52,18 @@ SERIES_LIMIT = 1e-3
 TABLE_QUADRATURE = 16384
 
 
-def exp_segment(k, a, b):
-    """``∫_a^b e^{-k s} ds`` for any real ``k`` (also ``k ≤ 0``), stable as
-    ``k·(b−a) → 0``."""
+def exp_segment(k, a, b, log_scale=0.0):
+    """``e^{log_scale} ∫_a^b e^{-k s} ds`` for any real ``k`` (also ``k ≤ 0``),
+    stable as ``k·(b−a) → 0``; the exponent is taken at the end where the
+    integrand is largest, so nothing overflows when the integrand is ≤ 1."""
     L = b - a
-    x = k * L
-    small = dr.abs(x) < SERIES_LIMIT
+    neg = k < 0
+    x = dr.abs(k) * L
+    small = x < SERIES_LIMIT
     safe = dr.select(small, 1.0, x)
     phi = dr.select(small, 1 - 0.5 * x + x * x * (1.0 / 6.0), (1 - dr.exp(-x)) / safe)
-    return dr.exp(-k * a) * L * phi
+    start = dr.select(neg, b, a)
+    return dr.exp(log_scale - k * start) * L * phi
 
 
 # --------------------------------------------------------------------------
@@ -128,7 +131,7 @@ def directional_section(sigma_t: mi.Color3f, path: BoxPath, t_a, t_b) -> mi.Colo
         # camera ray inside the box) get τ = 0 through the clamp below
         neg = (a + b * m) < 0
         a, b = dr.select(neg, 0.0, a), dr.select(neg, 0.0, b)
-        out += dr.exp(-sigma_t * a) * exp_segment(sigma_t * (1.0 + b), p, q)
+        out += exp_segment(sigma_t * (1.0 + b), p, q, log_scale=-sigma_t * a)
     return out
 
 
