@@ -19,8 +19,8 @@ the node's sections are lit if the ray's largest depth at the node's first
 and last texel points is ≤ the node's min (and the node's colour is
 uniform to float32 rounding, ``COLOUR_TOLERANCE``), shadowed if the ray's smallest depth over them is > the node's max
 (or its colour is black); then the whole node is one section and the march
-moves past it, climbing while the new position is aligned to the next
-level; otherwise it descends.  Depth along a ray, as a function of the
+moves past it and climbs one level if the new position is aligned to the
+next level; otherwise it descends.  Depth along a ray, as a function of the
 texel, is monotone (directional) or convex with its minimum at the ray's
 closest point to the light (point/spot), so the two end points bound it
 (plus that minimum): a node taken whole has every texel test agreeing, and
@@ -203,8 +203,14 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
     def t_test(i):
         return t_at_gamma(frame, rays, lo_k + (mi.Float(i) + 0.5) * dg, t_lo, t_hi)
 
-    def climb(i):
+    def start_level(i):
         return dr.minimum(dr.tzcnt(i), top)
+
+    def climb(i, level):
+        """One level up if ``i`` starts a node of the next level (talk: the
+        march's level follows the local scale of the height map)."""
+        up = (level < top) & (((i >> level) & 1) == 0)
+        return dr.select(up, level + 1, level)
 
     def cond(i, level, L, steps):
         return active & (i <= i_last)
@@ -231,10 +237,10 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         ta, tb = t_edge(i), t_edge(end)
         L = dr.select(add, L + c_lo * V * section(ta, tb), L)
         i_next = dr.select(done, i + size, i)
-        level = dr.select(done, climb(i_next), level - 1)
+        level = dr.select(done, climb(i_next, level), level - 1)
         return i_next, level, L, steps + 1
 
-    state = (mi.UInt32(i_first), climb(i_first), dr.zeros(mi.Color3f, dr.width(rays.t_end)),
+    state = (mi.UInt32(i_first), start_level(i_first), dr.zeros(mi.Color3f, dr.width(rays.t_end)),
              dr.zeros(mi.UInt32, dr.width(rays.t_end)))
     i, level, L, steps = dr.while_loop(state=state, cond=cond, body=body)
     return MarchResult(L=L, steps=steps)
