@@ -7,7 +7,9 @@
   texture removed (white shafts, for the coloured-vs-white comparison);
 - :func:`working_set_mb`: the arrays one render of ``minmax_epipolar``
   allocates (the talk's "Mem, MB" column, estimated from the sizes);
-- :func:`stage_ms`: its stage times in milliseconds.
+- :func:`stage_ms`: its stage times in milliseconds;
+- :func:`scaled_run`: the common options plus ``--scale`` (a resolution
+  factor for the machine at hand); :func:`write_results`: CSV + JSON + table.
 """
 from __future__ import annotations
 
@@ -73,3 +75,30 @@ def working_set_mb(stats: dict, width: int, height: int) -> float:
 
 def stage_ms(timings: dict) -> dict:
     return {f"{k}_ms": 1e3 * float(timings[k]) for k in STAGES if k in timings}
+
+
+def scaled_run(doc: str, settings_for, name: str, argv, scenes: list, quick_scenes: list):
+    """(args, settings, repeats, out) of an experiment with ``--scale``."""
+    from . import common as c
+
+    p = c.base_parser(doc, scenes, quick_scenes)
+    p.add_argument("--scale", type=float, default=None, help="resolution factor")
+    args = p.parse_args(argv)
+    s = settings_for(args.quick)
+    if args.scale:
+        s["scale"] = args.scale
+    return args, s, args.repeats or (1 if args.quick else 3), c.output_dir(name, args.out,
+                                                                          args.quick)
+
+
+def write_results(out, settings: dict, rows: list, text: str, **extra) -> None:
+    """``runs.csv``, ``runs.json`` (settings, environment, rows, ``extra``)
+    and ``table.md``; each list in ``extra`` also as ``<key>.csv``."""
+    from . import common as c
+
+    c.write_csv(out / "runs.csv", rows)
+    for key, value in extra.items():
+        if isinstance(value, list):
+            c.write_csv(out / f"{key}.csv", value)
+    c.write_json(out / "runs.json", settings, rows, **extra)
+    c.write_text(out / "table.md", text)

@@ -139,14 +139,8 @@ def report(rows, s) -> str:
 
 
 def main(argv=None):
-    p = c.base_parser(__doc__, [SPOT_SCENE], [SPOT_SCENE])
-    p.add_argument("--scale", type=float, default=None, help="resolution factor")
-    args = p.parse_args(argv)
-    s = settings_for(args.quick)
-    if args.scale:
-        s["scale"] = args.scale
-    repeats = args.repeats or (1 if args.quick else 3)
-    out = c.output_dir(NAME, args.out, args.quick)
+    args, s, repeats, out = mc.scaled_run(__doc__, settings_for, NAME, argv, [SPOT_SCENE],
+                                          [SPOT_SCENE])
     rows = []
     for size in s["sizes"]:
         rows += measure(SPOT_SCENE, size, jobs_for(size, s), TALK[size], s, repeats,
@@ -165,9 +159,7 @@ def main(argv=None):
     print(text)
     settings = {"name": NAME, **s, "repeats": repeats, "conventions": mc.CONVENTION,
                 "reference": c.reference_note(s["reference_steps"]), "quick": args.quick}
-    c.write_csv(out / "runs.csv", rows)
-    c.write_json(out / "runs.json", settings, rows)
-    c.write_text(out / "table.md", text)
+    mc.write_results(out, settings, rows, text)
     return rows
 
 

@@ -157,10 +157,8 @@ def main(argv=None):
         print(f"{name}: done (load {c.load_average()})", flush=True)
     text = report(rows, run.settings)
     print(text)
-    c.write_csv(run.out / "runs.csv", rows)
-    c.write_json(run.out / "runs.json", {"name": NAME, **run.settings, "scenes": run.scenes,
-                                         "quick": run.args.quick}, rows)
-    c.write_text(run.out / "table.md", text)
+    mc.write_results(run.out, {"name": NAME, **run.settings, "scenes": run.scenes,
+                               "quick": run.args.quick}, rows, text)
     plot(run.out / "error_maps.png", panels)
     return rows
 

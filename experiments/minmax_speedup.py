@@ -119,14 +119,8 @@ def report(rows, summary, s, repeats) -> str:
 
 
 def main(argv=None):
-    p = c.base_parser(__doc__, SCENES, QUICK_SCENES)
-    p.add_argument("--scale", type=float, default=None)
-    args = p.parse_args(argv)
-    s = settings_for(args.quick)
-    if args.scale:
-        s["scale"] = args.scale
-    repeats = args.repeats or (1 if args.quick else 3)
-    out = c.output_dir(NAME, args.out, args.quick)
+    args, s, repeats, out = mc.scaled_run(__doc__, settings_for, NAME, argv, SCENES,
+                                          QUICK_SCENES)
     rows = []
     for name in c.scenes_of(args):
         rows += measure_scene(name, s, repeats, not args.quick)
@@ -134,11 +128,8 @@ def main(argv=None):
     summary = speedups(rows)
     text = report(rows, summary, s, repeats)
     print(text)
-    c.write_csv(out / "runs.csv", rows)
-    c.write_csv(out / "speedup.csv", summary)
-    c.write_json(out / "runs.json", {"name": NAME, **s, "repeats": repeats,
-                                     "quick": args.quick}, rows, speedup=summary)
-    c.write_text(out / "table.md", text)
+    mc.write_results(out, {"name": NAME, **s, "repeats": repeats, "quick": args.quick}, rows,
+                     text, speedup=summary)
     return rows, summary
 
 

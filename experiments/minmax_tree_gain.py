@@ -107,9 +107,7 @@ def main(argv=None):
     print(text)
     settings = {"name": NAME, **run.settings, "repeats": run.repeats, "scenes": run.scenes,
                 "quick": run.args.quick}
-    c.write_csv(run.out / "runs.csv", rows)
-    c.write_json(run.out / "runs.json", settings, rows, colour_cost=cost)
-    c.write_text(run.out / "table.md", text)
+    mc.write_results(run.out, settings, rows, text, colour_cost=cost)
     return rows, cost
 
 
