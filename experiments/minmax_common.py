@@ -22,7 +22,7 @@ import numpy as np
 from episcatter import metrics
 
 #: stages of minmax_epipolar's scattering hook, in pipeline order
-STAGES = ("shadowmap", "samples", "refinement", "blockers", "tree", "integrate",
+STAGES = ("shadowmap", "samples", "table", "refinement", "blockers", "tree", "integrate",
           "interpolate", "unwarp", "fixup")
 CONVENTION = ("pixel centres: 1 sample per pixel at the pixel centre, against raymarch "
               "visibility=exact at the same positions")

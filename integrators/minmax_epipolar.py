@@ -163,13 +163,14 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 shadow_map = capture_shadow_map(params, cap, s["shadowmap_resolution"])
         with self.stage("samples"):
             samples = epipolar_samples(params, s["slices"], s["samples"], self.sample_density)
+        table = None
+        if params.light.kind != "directional":
+            with self.stage("table"):
+                table = point_table(params, self.table_resolution)
         with self.stage("refinement") as keep:
             flags = initial_samples(samples, self.initial_step)
             if self.refinement in ("depth", "visibility"):
                 flags |= depth_breaks(samples, self.refinement_threshold, self.threshold_mode)
-            table = None
-            if params.light.kind != "directional":
-                table = point_table(params, self.table_resolution)
             if self.refinement == "inscattering":
                 coarse = unshadowed_inscattering(params, samples, table)
                 flags |= inscattering_breaks(samples, coarse, self.refinement_threshold)

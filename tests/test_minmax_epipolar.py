@@ -390,3 +390,14 @@ def test_unsupported_scene_gives_the_shared_error(make_scene):
         cause = err.value.__cause__ or err.value
         errors.append(str(cause))
     assert errors[0] == errors[1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["minmax_performance", "minmax_tree_gain", "minmax_quality",
+                                  "minmax_speedup"])
+def test_experiments_quick(tmp_path, cache, name):
+    import importlib
+    module = importlib.import_module(f"experiments.{name}")
+    module.main(["--quick", "--out", str(tmp_path)])
+    for f in ("runs.csv", "runs.json", "table.md"):
+        assert (tmp_path / f).is_file()
