@@ -2,7 +2,6 @@
 image against ``raymarch visibility=exact`` at pixel centres."""
 import math
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -173,7 +172,7 @@ def test_traversal_equals_per_texel_march(make_scene, light, textured):
     t_near = np.full(R, 0.01)
     alpha = rng.uniform(-math.pi, math.pi, S)
     g_max = np.zeros(S)
-    from rectify import view_to_light_reference, ray_meeting_t_reference  # noqa: F401
+    from rectify import view_to_light_reference
     g_end = np.array([view_to_light_reference(frame, alpha[k[r]], beta[r], t_near[r] + t_end[r])[0]
                       for r in range(R)])
     for s in range(S):

@@ -107,7 +107,7 @@ def texel_gammas(layout_lo, delta, n: int):
     return k, lo + (mi.Float(i) + 0.5) * dg
 
 
-def texel_rays(params, frame: EpipolarFrame, alpha, gamma, u_top: float):
+def texel_rays(frame: EpipolarFrame, alpha, gamma, u_top: float):
     """Origin and unit direction of texel light rays (from the depth origin
     toward the scene)."""
     if frame.is_directional:
@@ -118,7 +118,7 @@ def texel_rays(params, frame: EpipolarFrame, alpha, gamma, u_top: float):
                               dr.full(mi.Float, -float(ax[2]), n))
     p_l = point(frame.light_position)
     w = dr.normalize(mi.Vector3f(light_coords_to_world(frame, alpha, gamma, 1.0) - p_l))
-    return mi.Point3f(p_l) + 0.0 * w, w
+    return dr.zeros(mi.Point3f, dr.width(w.x)) + p_l, w
 
 
 #: largest light-side exponent σt·r_in a texel's colour may carry (the
@@ -154,7 +154,7 @@ def slice_light_rays(params, samples: EpipolarSamples, n: int, source: str = "tr
     u_top = light_top(params, frame) if frame.is_directional else 0.0
     k, gamma = texel_gammas(lo, delta, n)
     alpha = dr.gather(mi.Float, mi.Float(samples.slices.alpha.astype(np.float32)), k)
-    o, w = texel_rays(params, frame, alpha, gamma, u_top)
+    o, w = texel_rays(frame, alpha, gamma, u_top)
     colour = texel_colour(params, frame, o, w)
     bias = BIAS * params.scene_extent
     if source == "traced":
@@ -188,7 +188,7 @@ def cell_depth_bounds(frame, shadow_map, alpha, gamma, delta, k, u_top, o, w):
     z_hi = dr.full(mi.Float, -dr.inf, dr.width(gamma))
     for q in range(CELL_PROBES):
         g = gamma + dg * ((q / (CELL_PROBES - 1)) - 0.5)
-        oq, wq = texel_rays(None, frame, alpha, g, u_top)
+        oq, wq = texel_rays(frame, alpha, g, u_top)
         lo, hi = shadow_map.depth_bounds(oq + wq * 1.0)
         z_lo, z_hi = dr.minimum(z_lo, lo), dr.maximum(z_hi, hi)
     if frame.is_directional:

@@ -123,10 +123,3 @@ def epipolar_samples(params, slices="auto", samples: int = 256,
     grid, on_screen = rescaled_grid(frame, sl, samples, density)
     return trace_samples(params, frame, sl, grid, on_screen)
 
-
-def slice_of_samples(samples: EpipolarSamples, values, k: int) -> np.ndarray:
-    """Row ``k`` of a per-sample array (NumPy; for tests and experiments)."""
-    arr = np.asarray(values)
-    M = samples.count
-    return arr.reshape((samples.slices.count, M) + arr.shape[1:])[k]
-
