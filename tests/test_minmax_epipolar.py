@@ -400,3 +400,16 @@ def test_experiments_quick(tmp_path, cache, name):
     module.main(["--quick", "--out", str(tmp_path)])
     for f in ("runs.csv", "runs.json", "table.md"):
         assert (tmp_path / f).is_file()
+
+
+@pytest.mark.parametrize("light", ["directional", "spot"])
+def test_resampled_tree_never_changes_the_per_texel_march(make_scene, light):
+    """Conservative 2×2-filter bounds: the tree gives the per-texel PCF
+    march's image (to float32 rounding and, for the spot, to the table's
+    section error)."""
+    scene = make_scene(light=light, res=(32, 24))
+    props = dict(rectification="resampled", shadowmap_resolution=128, light_rays=512)
+    on, a = render(scene, **props)
+    off, b = render(scene, min_max=False, **props)
+    assert np.allclose(on, off, rtol=2e-3, atol=2e-3 * off.max())
+    assert a.stats["mean_steps"] < b.stats["mean_steps"]
