@@ -413,3 +413,10 @@ def test_resampled_tree_never_changes_the_per_texel_march(make_scene, light):
     off, b = render(scene, min_max=False, **props)
     assert np.allclose(on, off, rtol=2e-3, atol=2e-3 * off.max())
     assert a.stats["mean_steps"] < b.stats["mean_steps"]
+
+
+def test_explicit_properties_override_the_profile(make_scene):
+    p = params_of(make_scene, res=(1366, 768))
+    integ = mi.load_dict({"type": "minmax_epipolar", "profile": "balanced", "samples": 77})
+    s = integ.settings(p)
+    assert s == dict(slices=512, samples=77, light_rays=1024, shadowmap_resolution=1024)
