@@ -28,6 +28,7 @@ METHOD_MODULES = (
     "integrators.raymarch",
     "integrators.epipolar_tree",
     "integrators.fourier_filter",
+    "integrators.minmax_epipolar",
 )
 
 

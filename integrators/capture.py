@@ -277,6 +277,30 @@ class ShadowMap:
             V = dr.select(inside, V, 1.0)
         return V
 
+    def depth_bounds(self, x, active=True):
+        """(min, max) blocker depth of the 4×4 texels around ``x``: every
+        point within half a texel of ``x`` (on the same face) filters only
+        these in :meth:`visibility`, so ``z <= min + bias`` means lit and
+        ``z > max + bias`` shadowed for all of them.  Outside a spot map:
+        (inf, inf), as :meth:`visibility` counts it lit."""
+        res = self.res
+        face, u, v, _ = self._coords(x)
+        iu, iv = mi.Int32(dr.floor(u)), mi.Int32(dr.floor(v))
+        lo = dr.full(mi.Float, dr.inf, dr.width(u))
+        hi = dr.full(mi.Float, -dr.inf, dr.width(u))
+        for du in range(-1, 3):
+            for dv in range(-1, 3):
+                ci = dr.clip(iu + du, 0, res - 1)
+                cj = dr.clip(iv + dv, 0, res - 1)
+                idx = mi.UInt32(face * res * res + mi.UInt32(cj) * res + mi.UInt32(ci))
+                zb = dr.gather(mi.Float, self.depth, idx, active)
+                lo, hi = dr.minimum(lo, zb), dr.maximum(hi, zb)
+        if self.kind == "persp":
+            inside = (u > -1.5) & (u < res + 0.5) & (v > -1.5) & (v < res + 0.5)
+            lo = dr.select(inside, lo, dr.inf)
+            hi = dr.select(inside, hi, dr.inf)
+        return lo, hi
+
 
 def _orthonormal(w):
     w = np.asarray(w, dtype=np.float64)

@@ -1,0 +1,297 @@
+"""1-D min/max binary trees per slice and their traversal (Yusov 2013, "1D
+min/max binary trees"; Chen et al. 2011).
+
+Tree: level 0 holds each texel's (min, max) blocker depth and (min, max)
+light colour (:mod:`.light_rays`); node ``j`` of level ``l`` covers texels
+``[j·2^l, (j+1)·2^l)`` and holds the min of its children's mins and the max
+of their maxima.  Levels ``0 … max_level`` are stored per slice, level ``l``
+at offset ``2n − 2n/2^l`` of the slice's ``2n`` entries.
+
+Semantics (what the tree must reproduce exactly): the *per-texel march* of a
+view ray.  Texel ``i`` owns the part of the ray whose light-ray coordinate
+``γ`` lies in its cell ``[γ_lo + iΔ, γ_lo + (i+1)Δ)``; that section is lit
+if the ray's point on the texel's light ray ``γ_i`` (clamped to the ray's
+ends) lies no deeper than the blocker, ``z ≤ z_b + bias``, and then adds
+``colour_i · I(section)`` (:mod:`.section_integral`).
+
+Traversal (talk, "Traversal optimization"): at texel ``i`` and level ``l``
+the node's sections are lit if the ray's largest depth at the node's first
+and last texel points is ≤ the node's min (and the node's colour is
+uniform to float32 rounding, ``COLOUR_TOLERANCE``), shadowed if the ray's smallest depth over them is > the node's max
+(or its colour is black); then the whole node is one section and the march
+moves past it and climbs one level if the new position is aligned to the
+next level; otherwise it descends.  Depth along a ray, as a function of the
+texel, is monotone (directional) or convex with its minimum at the ray's
+closest point to the light (point/spot), so the two end points bound it
+(plus that minimum): a node taken whole has every texel test agreeing, and
+the tree's sections are unions of the per-texel ones.  ``max_level = 0`` is
+the per-texel march itself (the talk's brute force along the slice).
+
+Resampled blockers store conservative (min, max) per texel and their leaves
+are not decisive: a leaf then reads the shadow map's PCF visibility at its
+point (``leaf_visibility``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from rectify import EpipolarFrame, ray_meeting_t, view_to_light
+
+from .light_rays import SliceLightRays
+
+
+#: a node's colour counts as uniform when its min and max agree to this
+#: relative tolerance (float32 rounding of Mitsuba's intensity / r² at r = 1)
+COLOUR_TOLERANCE = 1e-5
+
+
+@dataclass(frozen=True, eq=False)
+class MinMaxTree:
+    """Levels ``0 … levels-1`` of every slice (module docstring)."""
+    n: int
+    levels: int
+    z_min: mi.Float = field(repr=False)
+    z_max: mi.Float = field(repr=False)
+    c_min: mi.Color3f = field(repr=False)
+    c_max: mi.Color3f = field(repr=False)
+    slices: int = 0
+
+    @staticmethod
+    def offset(n: int, level: int) -> int:
+        return 2 * n - (2 * n >> level)
+
+
+def build_tree(rays: SliceLightRays, max_level: int | None = None) -> MinMaxTree:
+    """Build levels up to ``max_level`` (default: the root, log2 n)."""
+    n, S = rays.n, rays.slices
+    top = int(math.log2(n))
+    max_level = top if max_level is None else max(0, min(int(max_level), top))
+    size = S * 2 * n
+    z_min, z_max = dr.full(mi.Float, dr.inf, size), dr.full(mi.Float, -dr.inf, size)
+    c_min, c_max = dr.zeros(mi.Color3f, size), dr.zeros(mi.Color3f, size)
+    idx = dr.arange(mi.UInt32, S * n)
+    k = idx // n
+    dst = k * (2 * n) + (idx - k * n)
+    for arr, v in ((z_min, rays.z_min), (z_max, rays.z_max), (c_min, rays.colour),
+                   (c_max, rays.colour)):
+        dr.scatter(arr, v, dst)
+    for level in range(1, max_level + 1):
+        m = n >> level
+        idx = dr.arange(mi.UInt32, S * m)
+        k = idx // m
+        j = idx - k * m
+        base = k * (2 * n)
+        child = base + MinMaxTree.offset(n, level - 1) + 2 * j
+        dst = base + MinMaxTree.offset(n, level) + j
+        for arr, Type, op in ((z_min, mi.Float, dr.minimum), (z_max, mi.Float, dr.maximum),
+                              (c_min, mi.Color3f, dr.minimum), (c_max, mi.Color3f, dr.maximum)):
+            v = op(dr.gather(Type, arr, child), dr.gather(Type, arr, child + 1))
+            dr.scatter(arr, v, dst)
+        dr.eval(z_min, z_max, c_min, c_max)
+    return MinMaxTree(n=n, levels=max_level + 1, z_min=z_min, z_max=z_max, c_min=c_min,
+                      c_max=c_max, slices=S)
+
+
+def build_tree_reference(z_min, z_max, colour, max_level=None):
+    """NumPy twin: list of per-level ``(z_min, z_max, c_min, c_max)`` arrays
+    of shape (S, n >> l[, 3])."""
+    z_min, z_max, colour = (np.asarray(a, dtype=np.float64) for a in (z_min, z_max, colour))
+    n = z_min.shape[1]
+    top = int(math.log2(n)) if max_level is None else int(max_level)
+    out = [(z_min, z_max, colour, colour)]
+    for _ in range(top):
+        a, b, c, d = out[-1]
+        out.append((np.minimum(a[:, ::2], a[:, 1::2]), np.maximum(b[:, ::2], b[:, 1::2]),
+                    np.minimum(c[:, ::2], c[:, 1::2]), np.maximum(d[:, ::2], d[:, 1::2])))
+    return out
+
+
+# --------------------------------------------------------------------------
+# ray geometry in its slice
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class SliceRays:
+    """The view rays to march, one per lane: slice ``k``, angle ``β`` from
+    the camera–light axis, pinhole→origin distance ``t_near`` and the range
+    ``[0, t_end]`` (from the ray origin) to integrate."""
+    k: mi.UInt32
+    beta: mi.Float
+    t_near: mi.Float
+    t_end: mi.Float
+    alpha: mi.Float
+
+
+def depth_at(frame: EpipolarFrame, rays: SliceRays, u_top: float, t):
+    """Depth from the light's depth origin of the point ``t`` of each ray."""
+    _, u = view_to_light(frame, rays.alpha, rays.beta, rays.t_near + t)
+    return (u_top - u) if frame.is_directional else u
+
+
+def depth_range(frame: EpipolarFrame, rays: SliceRays, u_top: float, t_a, t_b):
+    """(min, max) depth over the ray points ``t ∈ [t_a, t_b]`` (monotone for
+    directional light; point/spot: convex, minimum ``h`` at the closest point)."""
+    z_a, z_b = depth_at(frame, rays, u_top, t_a), depth_at(frame, rays, u_top, t_b)
+    lo, hi = dr.minimum(z_a, z_b), dr.maximum(z_a, z_b)
+    if not frame.is_directional:
+        D = float(frame.light_distance)
+        sb, cb = dr.sincos(rays.beta)
+        t_c = D * cb - rays.t_near
+        lo = dr.select((t_c > t_a) & (t_c < t_b), D * sb, lo)
+    return lo, hi
+
+
+def t_at_gamma(frame: EpipolarFrame, rays: SliceRays, gamma, t_lo, t_hi):
+    """Ray parameter (from the origin) where the ray meets light ray ``γ``,
+    clamped to ``[t_lo, t_hi]`` (never met: ``t_hi``)."""
+    t, ok = ray_meeting_t(frame, rays.beta, gamma)
+    t = dr.select(ok, t - rays.t_near, dr.inf)
+    return dr.clip(t, t_lo, t_hi)
+
+
+# --------------------------------------------------------------------------
+# traversal
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class MarchResult:
+    L: mi.Color3f = field(repr=False)       # Σ colour · V · I over the sections
+    steps: mi.UInt32 = field(repr=False)    # loop iterations per ray
+
+
+def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTree,
+               rays: SliceRays, section, max_level: int | None = None,
+               leaf_visibility=None) -> MarchResult:
+    """March every ray through its slice's tree (module docstring).
+
+    ``section(t_a, t_b)`` → Color3f is the unit-colour in-scattering of a ray
+    section (:mod:`.section_integral`; it may close over per-ray values).
+    ``leaf_visibility(t)`` → Float in [0, 1] (resampled blockers) replaces the
+    leaf's own test.  ``max_level`` caps the levels used (0: per texel)."""
+    n = light_rays.n
+    top = tree.levels - 1 if max_level is None else max(0, min(int(max_level), tree.levels - 1))
+    lo_k = dr.gather(mi.Float, mi.Float(light_rays.gamma_lo.astype(np.float32)), rays.k)
+    dg = dr.gather(mi.Float, mi.Float(light_rays.delta.astype(np.float32)), rays.k)
+    hi_k = lo_k + n * dg
+    u_top, bias = light_rays.u_top, light_rays.bias
+    zero = dr.zeros(mi.Float, dr.width(rays.t_end))
+    g_s, _ = view_to_light(frame, rays.alpha, rays.beta, rays.t_near)
+    g_e, _ = view_to_light(frame, rays.alpha, rays.beta, rays.t_near + rays.t_end)
+    # clip the ray to the texels' γ range (spot cone)
+    t_lo = dr.select(g_s < lo_k, t_at_gamma(frame, rays, lo_k, zero, rays.t_end), zero)
+    t_hi = dr.select(g_e > hi_k, t_at_gamma(frame, rays, hi_k, zero, rays.t_end), rays.t_end)
+    g_s, g_e = dr.clip(g_s, lo_k, hi_k), dr.clip(g_e, lo_k, hi_k)
+    inv = dr.rcp(dg)
+    i_first = mi.UInt32(dr.clip(dr.floor((g_s - lo_k) * inv), 0, n - 1))
+    i_last = mi.UInt32(dr.clip(dr.floor((g_e - lo_k) * inv), 0, n - 1))
+    active = (t_hi > t_lo) & (g_e > g_s - 1e-30)
+    base = rays.k * (2 * n)
+
+    def t_edge(e):
+        """t of texel edge e (clamped to the ray)."""
+        t = t_at_gamma(frame, rays, lo_k + mi.Float(e) * dg, t_lo, t_hi)
+        t = dr.select(e <= i_first, t_lo, t)
+        return dr.select(e > i_last, t_hi, t)
+
+    def t_test(i):
+        return t_at_gamma(frame, rays, lo_k + (mi.Float(i) + 0.5) * dg, t_lo, t_hi)
+
+    def start_level(i):
+        return dr.minimum(dr.tzcnt(i), top)
+
+    def climb(i, level):
+        """One level up if ``i`` starts a node of the next level (talk: the
+        march's level follows the local scale of the height map)."""
+        up = (level < top) & (((i >> level) & 1) == 0)
+        return dr.select(up, level + 1, level)
+
+    def cond(i, level, L, steps):
+        return active & (i <= i_last)
+
+    def body(i, level, L, steps):
+        size = mi.UInt32(1) << level
+        end = dr.minimum(i + size, i_last + 1)              # texels [i, end) of the ray
+        node = base + (2 * n - ((2 * n) >> level)) + (i >> level)
+        z_lo, z_hi = dr.gather(mi.Float, tree.z_min, node), dr.gather(mi.Float, tree.z_max, node)
+        c_lo, c_hi = dr.gather(mi.Color3f, tree.c_min, node), dr.gather(mi.Color3f, tree.c_max, node)
+        r_lo, r_hi = depth_range(frame, rays, u_top, t_test(i), t_test(end - 1))
+        uniform = dr.all(c_hi - c_lo <= COLOUR_TOLERANCE * c_hi)
+        black = dr.all(c_hi <= 0.0)
+        lit = (r_hi <= z_lo + bias) & uniform & ~black
+        dark = (r_lo > z_hi + bias) | black
+        leaf = level == 0
+        V = dr.select(lit, 1.0, 0.0)
+        if leaf_visibility is not None:
+            undecided = leaf & ~lit & ~dark
+            V = dr.select(undecided, leaf_visibility(t_test(i), i), V)
+            lit |= undecided & (V > 0)
+        done = lit | dark | leaf
+        add = done & lit
+        ta, tb = t_edge(i), t_edge(end)
+        L = dr.select(add, L + c_lo * V * section(ta, tb), L)
+        i_next = dr.select(done, i + size, i)
+        level = dr.select(done, climb(i_next, level), level - 1)
+        return i_next, level, L, steps + 1
+
+    state = (mi.UInt32(i_first), start_level(i_first), dr.zeros(mi.Color3f, dr.width(rays.t_end)),
+             dr.zeros(mi.UInt32, dr.width(rays.t_end)))
+    i, level, L, steps = dr.while_loop(state=state, cond=cond, body=body)
+    return MarchResult(L=L, steps=steps)
+
+
+# --------------------------------------------------------------------------
+# NumPy oracle: the per-texel march of one ray
+# --------------------------------------------------------------------------
+
+
+def march_texels_reference(frame, z_b, colour, gamma_lo, delta, u_top, bias, beta, t_near, t_end,
+                           section, alpha=0.0):
+    """Per-texel march of one ray (float64): returns ``(L, lit)`` with ``L``
+    = Σ colour_i · section(t_a, t_b) over lit texels and ``lit`` the list of
+    lit texel indices.  ``z_b`` (n,), ``colour`` (n, 3)."""
+    from rectify import ray_meeting_t_reference, view_to_light_reference
+    n = len(z_b)
+
+    def t_of(g):
+        t, ok = ray_meeting_t_reference(frame, beta, g)
+        t = float(np.asarray(t).reshape(-1)[0]) - t_near if bool(np.asarray(ok).reshape(-1)[0]) \
+            else np.inf
+        return min(max(t, t_lo), t_hi)
+
+    def depth(t):
+        _, u = view_to_light_reference(frame, alpha, beta, t_near + t)
+        u = float(np.asarray(u).reshape(-1)[0])
+        return (u_top - u) if frame.is_directional else u
+
+    hi = gamma_lo + n * delta
+    g_s = float(np.asarray(view_to_light_reference(frame, alpha, beta, t_near)[0]).reshape(-1)[0])
+    g_e = float(np.asarray(view_to_light_reference(frame, alpha, beta,
+                                                   t_near + t_end)[0]).reshape(-1)[0])
+    t_lo, t_hi = 0.0, t_end
+    if g_s < gamma_lo:
+        t_lo = t_of(gamma_lo)
+    if g_e > hi:
+        t_hi = t_of(hi)
+    g_s, g_e = min(max(g_s, gamma_lo), hi), min(max(g_e, gamma_lo), hi)
+    L = np.zeros(3)
+    lit = []
+    if not t_hi > t_lo:
+        return L, lit
+    i0 = int(min(max(math.floor((g_s - gamma_lo) / delta), 0), n - 1))
+    i1 = int(min(max(math.floor((g_e - gamma_lo) / delta), 0), n - 1))
+    for i in range(i0, i1 + 1):
+        ta = t_lo if i == i0 else t_of(gamma_lo + i * delta)
+        tb = t_hi if i == i1 else t_of(gamma_lo + (i + 1) * delta)
+        z = depth(t_of(gamma_lo + (i + 0.5) * delta))
+        c = np.asarray(colour[i], dtype=np.float64)
+        if z <= z_b[i] + bias and np.any(c > 0):
+            lit.append(i)
+            L += c * np.asarray(section(ta, tb), dtype=np.float64)
+    return L, lit
