@@ -102,7 +102,8 @@ def measure(scene_name, size, jobs, talk_rows, s, repeats, progress) -> list[dic
                    paper_ms=1e3 * (scat - st.get("shadowmap", 0.0)),
                    first_run_ms=1e3 * r["first_run_s"], **mc.stage_ms(st),
                    **mc.quality(r["image"], ref))
-        stats = getattr(integ[label], "stats", None)
+        stats = (integ[label].render_layers(scene, spp=1).stats
+                 if hasattr(integ[label], "render_layers") else None)
         if stats:
             row.update(working_set_mb=mc.working_set_mb(stats, w, h),
                        integration_samples=stats["integration_samples"],

@@ -47,7 +47,7 @@ def measure_scene(name, s, repeats) -> list[dict]:
     on, off = timed["min_max=True"], timed["min_max=False"]
     rows = []
     for mm, r in ((True, on), (False, off)):
-        st = integ[mm].stats
+        st = integ[mm].render_layers(scene, spp=1).stats
         rows.append({"scene": name, "min_max": mm, "integrate_ms": 1e3 * r["stages"]["integrate"],
                      "scattering_ms": 1e3 * r["stages"]["scattering"],
                      "mean_steps": st["mean_steps"],

@@ -133,7 +133,6 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.ring_degrees = read_number(props, "ring_degrees", 1.0, minimum=0.0, maximum=90.0)
         self.explicit = {k for k in ("slices", "samples", "shadowmap_resolution", "light_rays")
                          if k in props}
-        self.stats = {}
 
     # -- stages -------------------------------------------------------------------
     def settings(self, params):
@@ -211,10 +210,10 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                         shadow_map, ring)
             keep.append(out.L)
         n_int = int(dr.count(flags)[0])
-        self.stats = dict(settings=s, slices=samples.slices.count, samples=samples.size,
-                          used_samples=int(dr.count(samples.used)[0]),
-                          integration_samples=n_int, fixup_pixels=out.fixup_count,
-                          mean_steps=steps / max(n_int, 1))
+        self.record(settings=s, slices=samples.slices.count, samples=samples.size,
+                    used_samples=int(dr.count(samples.used)[0]),
+                    integration_samples=n_int, fixup_pixels=out.fixup_count,
+                    mean_steps=steps / max(n_int, 1))
         return out.L
 
     def to_string(self):

@@ -282,7 +282,8 @@ def test_profiles_follow_the_talk():
 
 def render(scene, **props):
     integ = mi.load_dict({"type": "minmax_epipolar", "output": "scattering", **props})
-    return np.asarray(integ.render(scene)), integ
+    result = integ.render_layers(scene, spp=1)
+    return np.asarray(result["scattering"]), result
 
 
 def exact(scene):

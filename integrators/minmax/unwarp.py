@@ -26,8 +26,7 @@ import mitsuba as mi
 from rectify import unrectify_bilateral
 
 from ..capture import CameraCapture
-from ..epipolar_setup import subset_capture
-from ..raymarch import auto_spacing, march
+from ..marching import auto_spacing, march
 from .slices_and_samples import EpipolarSamples
 
 
@@ -72,7 +71,7 @@ def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
     idx = dr.compress(todo)
     L = mi.Color3f(L_pixel)
     if dr.width(idx):
-        sub = subset_capture(cap, idx)
+        sub = cap.subset(idx)
         fixed = march(params, sub, steps, shadow_map=shadow_map, spacing=auto_spacing(params))
         dr.scatter(L, fixed, idx)
     return Unwarped(L=L, weight=weight, fixup=idx)
