@@ -1,0 +1,312 @@
+"""Bounded shadow volumes and the temporal change mask (Lin et al. §3;
+Wyman & Ramsey 2008 for the volumes).
+
+A camera sample's single scattering ``L_scat = ∫_0^d ... V(x(t)) dt``
+depends on the scene only through its segment ``[0, d]`` and the visibility
+``V`` of the points on it.  When an object moves between two frames (camera,
+light and medium fixed), ``V(x)`` can change only where the light ray from
+``x`` meets the object in one of the two frames, i.e. inside the object's
+*shadow volume* there; ``d`` changes only where the camera ray meets it.
+So a sample is *dirty* (must be recomputed) when its segment meets the
+shadow volume of a moving object in the previous or the current frame, or
+its ``d`` changed; every other sample keeps its value exactly.
+
+The shadow volume is bounded conservatively: each object is covered by
+axis-aligned boxes (its bounding box, or the boxes of clusters of its
+triangles, :func:`shape_boxes`), and each box ``B`` is extruded away from
+the light to infinity:
+
+* directional light toward ``l``: ``SV(B) = {x : x + s·l ∈ B for some s ≥ 0}``;
+* point/spot light at ``p``: ``SV(B) = {p + λ(y − p) : y ∈ B, λ ≥ 1}``
+  (the spot cone is ignored: conservative).
+
+Both are convex polyhedra (the box's faces that face the light plus the
+supporting planes through the light and the box's silhouette edges;
+:func:`shadow_volume_planes`), so a camera segment meets one iff
+Cyrus–Beck clipping against its planes leaves a non-empty interval
+``[t0, t1]`` (:func:`clip_segments`, Dr.Jit, one kernel for any number of
+volumes).  A light inside a box makes that volume everything.  Every box is
+padded by ``PAD`` (relative to the medium box's diagonal) to absorb float
+rounding of the ray tests.
+
+:func:`change_mask_reference` is the slow, obvious NumPy twin: dense points
+along each segment, each tested by a slab test of its own light ray against
+the boxes.  :func:`whole_frame_changes` detects (never assumes) a moved
+camera, light or changed medium, which makes every sample dirty.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+#: box padding relative to the medium box's diagonal (float rounding of ray tests)
+PAD = 1e-4
+#: planes stored per volume: 6 faces + 12 edge planes; unused slots never cut
+PLANES_PER_VOLUME = 18
+
+_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8)
+          if bin(a ^ b).count("1") == 1]   # corner k = (x bit 0, y bit 1, z bit 2)
+
+
+@dataclass(frozen=True)
+class Boxes:
+    """Axis-aligned boxes ``[lo[i], hi[i]]`` (NumPy float64, shape (n, 3))."""
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def __len__(self):
+        return len(self.lo)
+
+    @staticmethod
+    def empty() -> "Boxes":
+        return Boxes(np.zeros((0, 3)), np.zeros((0, 3)))
+
+    @staticmethod
+    def concat(parts) -> "Boxes":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return Boxes.empty()
+        return Boxes(np.concatenate([p.lo for p in parts]), np.concatenate([p.hi for p in parts]))
+
+    def padded(self, pad: float) -> "Boxes":
+        return Boxes(self.lo - pad, self.hi + pad)
+
+    def corners(self, i) -> np.ndarray:
+        """(8, 3): corner k takes hi on axis j iff bit j of k is set."""
+        bits = (np.arange(8)[:, None] >> np.arange(3)[None]) & 1
+        return np.where(bits == 1, self.hi[i][None], self.lo[i][None])
+
+
+# -- bounding boxes of shapes ----------------------------------------------------
+def triangle_cluster_boxes(vertices: np.ndarray, faces: np.ndarray, clusters: int) -> Boxes:
+    """Boxes of ``clusters`` groups of triangles, grouped along a Morton
+    order of their centroids (nearby triangles share a box).  Every triangle
+    lies in its group's box, so the union of boxes covers the mesh."""
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        return Boxes.empty()
+    tri = vertices[faces]                                   # (m, 3, 3)
+    t_lo, t_hi = tri.min(axis=1), tri.max(axis=1)
+    clusters = int(max(1, min(clusters, len(faces))))
+    if clusters == 1:
+        return Boxes(t_lo.min(0)[None], t_hi.max(0)[None])
+    c = 0.5 * (t_lo + t_hi)
+    lo, hi = c.min(0), c.max(0)
+    q = np.floor((c - lo) / np.maximum(hi - lo, 1e-30) * 1023).astype(np.int64)
+    code = np.zeros(len(c), dtype=np.int64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    order = np.argsort(code, kind="stable")
+    starts = np.linspace(0, len(faces), clusters + 1).astype(np.int64)[:-1]
+    return Boxes(np.minimum.reduceat(t_lo[order], starts, axis=0),
+                 np.maximum.reduceat(t_hi[order], starts, axis=0))
+
+
+def shape_boxes(shape, clusters: int = 1) -> Boxes:
+    """Boxes covering a Mitsuba shape as it is now: triangle clusters of a
+    mesh (its current ``vertex_positions``), the bounding box otherwise."""
+    if shape.is_mesh() and clusters > 1:
+        p = mi.traverse(shape)
+        return triangle_cluster_boxes(np.array(p["vertex_positions"]), np.array(p["faces"]),
+                                      clusters)
+    bb = shape.bbox()
+    return Boxes(np.array(bb.min, dtype=np.float64)[None], np.array(bb.max, dtype=np.float64)[None])
+
+
+def occluders(params):
+    """Every shape of the scene that can block light (all but the medium
+    boundary, which exact visibility passes)."""
+    med = params.medium.medium
+    return [s for s in params.scene.shapes()
+            if not (s.interior_medium() is not None and med is not None
+                    and s.interior_medium().ptr == med.ptr)]
+
+
+# -- the extruded volumes as planes ------------------------------------------------
+def light_anchor(light):
+    """('directional', l toward the light) or ('point', light position)."""
+    if light.kind == "directional":
+        return "directional", np.asarray(light.direction, dtype=np.float64)
+    return "point", np.asarray(light.position, dtype=np.float64)
+
+
+def shadow_volume_planes(boxes: Boxes, light) -> np.ndarray:
+    """(n, PLANES_PER_VOLUME, 4) half-spaces ``n·x <= c`` (unit ``n``) whose
+    intersection is each box's shadow volume (module doc).  Unused slots are
+    ``0·x <= 1``; a box holding the light has only unused slots (its volume
+    is everything)."""
+    kind, a = light_anchor(light)
+    out = np.zeros((len(boxes), PLANES_PER_VOLUME, 4))
+    out[:, :, 3] = 1.0
+    normals = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]],
+                       dtype=np.float64)
+    for i in range(len(boxes)):
+        lo, hi = boxes.lo[i], boxes.hi[i]
+        scale = float(np.max(hi - lo)) + 1e-30
+        if kind == "point" and np.all(a >= lo) and np.all(a <= hi):
+            continue
+        planes = []
+        for n in normals:
+            c = float(n @ np.where(n > 0, hi, lo))
+            facing = (n @ a) >= 0 if kind == "directional" else (n @ a) >= c
+            if facing:
+                planes.append((n, c))
+        corners = boxes.corners(i)
+        for ia, ib in _EDGES:
+            pa, pb = corners[ia], corners[ib]
+            m = np.cross(pb - pa, a if kind == "directional" else a - pa)
+            norm = np.linalg.norm(m)
+            arm = 1.0 if kind == "directional" else float(np.linalg.norm(a - pa))
+            if norm <= 1e-12 * float(np.linalg.norm(pb - pa)) * arm:
+                continue   # an edge pointing at the light: its faces bound the volume
+            m = m / norm
+            s = (corners - pa) @ m
+            tol = 1e-9 * scale
+            if np.all(s <= tol):
+                planes.append((m, float(m @ pa)))
+            elif np.all(s >= -tol):
+                planes.append((-m, float(-m @ pa)))
+        for k, (n, c) in enumerate(planes):
+            out[i, k, :3], out[i, k, 3] = n, c
+    return out
+
+
+@dataclass
+class ShadowVolumes:
+    """Plane arrays of ``count`` volumes on the Dr.Jit device (flattened
+    ``PLANES_PER_VOLUME`` per volume), ready for :func:`clip_segments`."""
+    count: int
+    nx: mi.Float
+    ny: mi.Float
+    nz: mi.Float
+    c: mi.Float
+
+    @staticmethod
+    def from_boxes(boxes: Boxes, params, pad: float = PAD) -> "ShadowVolumes":
+        planes = shadow_volume_planes(boxes.padded(pad * params.scene_extent), params.light)
+        flat = planes.reshape(-1, 4).astype(np.float32)
+        return ShadowVolumes(len(boxes), *(mi.Float(np.ascontiguousarray(flat[:, k]))
+                                           for k in range(4)))
+
+
+def clip_segments(volumes: ShadowVolumes, o, omega, d):
+    """Cyrus–Beck clipping of the segments ``o + t·ω``, ``t ∈ [0, d]``
+    against every volume.  Returns ``(hit, t_lo, t_hi)``: whether any volume
+    meets the segment and the hull ``[t_lo, t_hi]`` of the pieces inside
+    (``t_lo > t_hi`` where none).  One kernel whatever the volume count."""
+    n = dr.width(d)
+    d = mi.Float(d)
+    if volumes.count == 0:
+        return dr.zeros(mi.Bool, n), dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)
+    total = dr.opaque(mi.UInt32, volumes.count * PLANES_PER_VOLUME)
+    P = PLANES_PER_VOLUME
+
+    def body(j, t0, t1, lo, hi):
+        nv = mi.Vector3f(dr.gather(mi.Float, volumes.nx, j), dr.gather(mi.Float, volumes.ny, j),
+                         dr.gather(mi.Float, volumes.nz, j))
+        c = dr.gather(mi.Float, volumes.c, j)
+        first = (j % P) == 0
+        t0 = dr.select(first, 0.0, t0)
+        t1 = dr.select(first, d, t1)
+        den = dr.dot(nv, omega)
+        num = c - dr.dot(nv, mi.Vector3f(o))
+        t = num / dr.select(den == 0, 1.0, den)
+        t1 = dr.select(den > 0, dr.minimum(t1, t), t1)
+        t0 = dr.select(den < 0, dr.maximum(t0, t), t0)
+        t1 = dr.select((den == 0) & (num < 0), -1.0, t1)
+        last = (j % P) == P - 1
+        inside = last & (t0 <= t1)
+        lo = dr.select(inside, dr.minimum(lo, t0), lo)
+        hi = dr.select(inside, dr.maximum(hi, t1), hi)
+        return j + 1, t0, t1, lo, hi
+
+    _, _, _, lo, hi = dr.while_loop(
+        state=(mi.UInt32(0), dr.zeros(mi.Float, n), mi.Float(d),
+               dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)),
+        cond=lambda j, *_: j < total, body=body)
+    return lo <= hi, lo, hi
+
+
+def change_mask(cap, volumes: ShadowVolumes, previous_d=None) -> mi.Bool:
+    """Dirty camera samples of ``cap`` (module doc): the segment meets one of
+    ``volumes`` (the moving objects' boxes in the previous and the current
+    frame), or ``d`` differs from ``previous_d``."""
+    hit, _, _ = clip_segments(volumes, cap.o, cap.omega, cap.d)
+    if previous_d is not None:
+        hit |= ~(mi.Float(previous_d) == cap.d)
+    return hit
+
+
+# -- whole-frame changes -----------------------------------------------------------
+def frame_invariants(params) -> dict:
+    """What every sample depends on besides the occluders: camera, light and
+    medium parameters as NumPy arrays (compared by :func:`whole_frame_changes`)."""
+    cam, light, med = params.camera, params.light, params.medium
+    em = mi.traverse(light.emitter)
+    ph = mi.traverse(med.phase)
+    return {
+        "camera": np.concatenate([cam.origin, cam.forward, cam.x_axis, cam.y_axis,
+                                  [cam.width, cam.height, cam.near_clip]]),
+        "light": np.concatenate([np.ravel(np.array(em[k], dtype=np.float64)) for k in sorted(em.keys())
+                                 if _numeric(em[k])] + [[len(light.kind)]]),
+        "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max]
+                                 + [np.ravel(np.array(ph[k], dtype=np.float64))
+                                    for k in sorted(ph.keys()) if _numeric(ph[k])]),
+    }
+
+
+def _numeric(value) -> bool:
+    try:
+        np.array(value, dtype=np.float64)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def whole_frame_changes(previous: dict | None, current: dict) -> list[str]:
+    """Names (``camera``, ``light``, ``medium``) whose parameters differ
+    between two :func:`frame_invariants`; all of them for the first frame."""
+    if previous is None:
+        return sorted(current)
+    return [k for k in sorted(current)
+            if previous[k].shape != current[k].shape or not np.array_equal(previous[k], current[k])]
+
+
+# -- the NumPy oracle ----------------------------------------------------------------
+def in_shadow_volume_reference(x: np.ndarray, boxes: Boxes, light) -> np.ndarray:
+    """Per point of ``x`` (n, 3): does its light ray (toward a directional
+    light, or the segment to a point/spot light) meet one of ``boxes``?
+    Slab test in float64."""
+    kind, a = light_anchor(light)
+    x = np.asarray(x, dtype=np.float64)
+    w = np.broadcast_to(a, x.shape) if kind == "directional" else a - x
+    s_max = np.inf if kind == "directional" else 1.0
+    out = np.zeros(len(x), dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for lo, hi in zip(boxes.lo, boxes.hi):
+            t0, t1 = (lo - x) / w, (hi - x) / w
+            near = np.nanmax(np.where(w == 0, np.where((x >= lo) & (x <= hi), -np.inf, np.inf),
+                                      np.minimum(t0, t1)), axis=1)
+            far = np.nanmin(np.where(w == 0, np.where((x >= lo) & (x <= hi), np.inf, -np.inf),
+                                     np.maximum(t0, t1)), axis=1)
+            out |= np.maximum(near, 0.0) <= np.minimum(far, s_max)
+    return out
+
+
+def change_mask_reference(o, omega, d, boxes: Boxes, light, samples: int = 512) -> np.ndarray:
+    """Dense-sampling oracle of the shadow-volume part of :func:`change_mask`:
+    ``samples`` points on each segment ``o + t·ω``, ``t ∈ [0, d]`` (both ends
+    included), each tested by :func:`in_shadow_volume_reference`."""
+    o, omega, d = (np.asarray(v, dtype=np.float64) for v in (o, omega, d))
+    t = np.linspace(0.0, 1.0, samples)
+    out = np.zeros(len(d), dtype=bool)
+    for k in range(0, len(d), 256):
+        sl = slice(k, k + 256)
+        x = o[sl, None] + omega[sl, None] * (d[sl, None, None] * t[None, :, None])
+        out[sl] = in_shadow_volume_reference(x.reshape(-1, 3), boxes, light).reshape(-1, samples).any(1)
+    return out
