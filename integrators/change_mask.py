@@ -110,8 +110,8 @@ def triangle_cluster_boxes(vertices: np.ndarray, faces: np.ndarray, clusters: in
 def shape_boxes(shape, clusters: int = 1) -> Boxes:
     """Boxes covering a Mitsuba shape as it is now: triangle clusters of a
     mesh (its current ``vertex_positions``), the bounding box otherwise."""
-    if shape.is_mesh() and clusters > 1:
-        p = mi.traverse(shape)
+    p = mi.traverse(shape) if clusters > 1 else {}
+    if "vertex_positions" in p and "faces" in p:
         return triangle_cluster_boxes(np.array(p["vertex_positions"]), np.array(p["faces"]),
                                       clusters)
     bb = shape.bbox()
