@@ -25,6 +25,12 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
                            the angle seen from a point/spot light: short
                            segments where 1/r² peaks) or ``auto`` (default:
                            equiangular for point/spot, uniform otherwise)
+``march``                  ``full`` (default) or ``hybrid`` (Wyman & Ramsey
+                           2008, :mod:`integrators.hybrid_march`: exact
+                           visibility traced only inside the occluders'
+                           bounded shadow volumes; needs ``visibility=exact``)
+``volume_boxes``           boxes per occluder mesh bounding its shadow
+                           volume for ``hybrid`` (default 8)
 =========================  ==================================================
 """
 from __future__ import annotations
@@ -33,6 +39,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .capture import capture_shadow_map, seed_offset
+from .hybrid_march import shadow_range
 from .light_transport import (color, light_transmittance, phase_eval, sample_light,
                               segment_box, segment_weight, visible_exact)
 from .template import EpiscatterIntegrator, read_choice, read_number
@@ -46,6 +53,11 @@ class RaymarchIntegrator(EpiscatterIntegrator):
                                                 minimum=1, maximum=32768, integer=True)
         self.jitter = bool(props.get("jitter", False))
         self.spacing = read_choice(props, "spacing", "auto", ("auto", "uniform", "equiangular"))
+        self.march = read_choice(props, "march", "full", ("full", "hybrid"))
+        self.volume_boxes = read_number(props, "volume_boxes", 8, minimum=1, integer=True)
+        if self.march == "hybrid" and self.visibility != "exact":
+            raise ValueError("Property 'march' = 'hybrid' traces exact visibility inside the "
+                             "shadow volumes: set visibility='exact' (or march='full').")
 
     def scattering(self, params, cap):
         shadow_map = None
@@ -53,8 +65,13 @@ class RaymarchIntegrator(EpiscatterIntegrator):
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
         spacing = auto_spacing(params) if self.spacing == "auto" else self.spacing
+        t_range = None
+        if self.march == "hybrid":
+            with self.stage("shadow_volumes") as keep:
+                t_range = shadow_range(params, cap, self.volume_boxes)
+                keep.extend(t_range)
         return march(params, cap, self.steps, shadow_map, self.jitter, self.render_seed,
-                     spacing)
+                     spacing, t_range)
 
 
 def auto_spacing(params) -> str:
@@ -85,8 +102,12 @@ def step_boundaries(params, cap, steps, spacing):
     return t_of
 
 
-def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform"):
-    """L_scat per camera sample by ``steps`` analytic segments (see module doc)."""
+def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform",
+          shadow_range=None):
+    """L_scat per camera sample by ``steps`` analytic segments (see module doc).
+    ``shadow_range = (t_lo, t_hi)`` per sample (Wyman & Ramsey 2008): exact
+    visibility is traced only at points with ``t`` in it, ``V = 1`` elsewhere
+    (:func:`integrators.hybrid_march.shadow_range`)."""
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
     sigma_s = color(params.medium.sigma_s)
@@ -100,11 +121,13 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
 
     def body(k, L):
         s = mi.Float(k)
-        x = cap.o + cap.omega * t_of(s + offset)
+        t = t_of(s + offset)
+        x = cap.o + cap.omega * t
         wo, dist, L_light = sample_light(params, x)
         tau, t_in, t_out = segment_box(params, x, wo, dist)
         if shadow_map is None:
-            V = dr.select(visible_exact(params, x, wo, dist, t_in, t_out), 1.0, 0.0)
+            active = True if shadow_range is None else (t >= shadow_range[0]) & (t <= shadow_range[1])
+            V = dr.select(visible_exact(params, x, wo, dist, t_in, t_out, active), 1.0, 0.0)
         else:
             V = shadow_map.visibility(x)
         f_p = phase_eval(params, cap.omega, wo, x)
