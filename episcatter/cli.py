@@ -15,6 +15,7 @@ COMMANDS = {
     "compare": "error metrics of a test image against a reference",
     "bench": "time and error of integrators on scenes, with parameter sweeps",
     "epipolar": "epipolar geometry diagnostics of a scene",
+    "animate": "render an animation of moving shapes, reusing what they do not change",
 }
 
 

@@ -32,8 +32,9 @@ import mitsuba as mi
 import numpy as np
 
 from integrators.capture import capture_camera
-from integrators.change_mask import (Boxes, ShadowVolumes, change_mask, frame_invariants,
-                                     shape_boxes, whole_frame_changes)
+from integrators.change_mask import (Boxes, ShadowVolumes, TriangleGroups, change_mask,
+                                     frame_invariants, mesh_arrays, shape_boxes,
+                                     whole_frame_changes)
 from integrators.sample_reuse import reuse_blocker, scattering_of_samples
 from integrators.scene_params import SceneParams
 from integrators.template import pixel_average, to_image
@@ -82,10 +83,17 @@ class Sequence:
         self.reuse, self.seed, self.volume_boxes = reuse, int(seed), int(volume_boxes)
         self.spp = int(spp) if spp else integrator.samples_per_pixel
         self.keep_mask = keep_mask
+        # triangle clusters of each moving mesh, grouped once at its rest pose
+        self.groups = {}
+        for shape in self.animator.moving_shapes:
+            mesh = mesh_arrays(shape) if self.volume_boxes > 1 else None
+            if mesh is not None:
+                self.groups[shape.id()] = TriangleGroups.of(mesh[0], mesh[1], self.volume_boxes)
         self._state = None   # (boxes, d, L_scat, invariants) of the last frame
 
     def moving_boxes(self) -> Boxes:
-        return Boxes.concat([shape_boxes(s, self.volume_boxes) for s in self.animator.moving_shapes])
+        return Boxes.concat([shape_boxes(s, self.volume_boxes, self.groups.get(s.id()))
+                             for s in self.animator.moving_shapes])
 
     def render_frame(self, k: int) -> FrameResult:
         """Pose, mask, compute and compose frame ``k`` (frames are expected

@@ -81,39 +81,79 @@ class Boxes:
 
 
 # -- bounding boxes of shapes ----------------------------------------------------
+def _spread_bits(q: np.ndarray) -> np.ndarray:
+    """10-bit integers -> every third bit (for 30-bit Morton codes)."""
+    q = q.astype(np.int64) & 0x3FF
+    q = (q | (q << 16)) & 0x030000FF
+    q = (q | (q << 8)) & 0x0300F00F
+    q = (q | (q << 4)) & 0x030C30C3
+    return (q | (q << 2)) & 0x09249249
+
+
+@dataclass(frozen=True)
+class TriangleGroups:
+    """A fixed grouping of a mesh's triangles into clusters (along a Morton
+    order of their first vertices, so nearby triangles share a cluster):
+    ``vertex_index`` lists the vertices of each cluster's triangles (each
+    once), cluster by cluster, cluster ``g`` starting at ``starts[g]``.  Any grouping bounds the mesh
+    (every triangle lies in its cluster's box); a grouping made at the rest
+    pose stays tight under rigid motion, so animations make it once."""
+    vertex_index: np.ndarray
+    starts: np.ndarray
+
+    @staticmethod
+    def of(vertices: np.ndarray, faces: np.ndarray, clusters: int) -> "TriangleGroups":
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        clusters = int(max(1, min(clusters, len(faces))))
+        order = np.arange(len(faces))
+        if clusters > 1:
+            c = vertices[faces[:, 0]]
+            lo, hi = c.min(0), c.max(0)
+            q = np.floor((c - lo) / np.maximum(hi - lo, 1e-30) * 1023)
+            code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << 1) | (_spread_bits(q[:, 2]) << 2)
+            order = np.argsort(code, kind="stable")
+        group = np.empty(len(faces), dtype=np.int64)
+        group[order] = np.arange(len(faces)) * clusters // max(1, len(faces))
+        n = max(1, len(vertices))
+        # each (cluster, vertex) pair once, sorted by cluster
+        marks = np.zeros(clusters * n, dtype=bool)
+        marks[np.repeat(group, 3) * n + faces.ravel()] = True
+        pairs = np.flatnonzero(marks)
+        starts = np.searchsorted(pairs // n, np.arange(clusters))
+        return TriangleGroups(pairs % n, starts)
+
+    def boxes(self, vertices: np.ndarray) -> Boxes:
+        """The clusters' boxes for the mesh's ``vertices`` (n, 3) now."""
+        if len(self.vertex_index) == 0:
+            return Boxes.empty()
+        p = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)[self.vertex_index]
+        return Boxes(np.minimum.reduceat(p, self.starts, axis=0),
+                     np.maximum.reduceat(p, self.starts, axis=0))
+
+
 def triangle_cluster_boxes(vertices: np.ndarray, faces: np.ndarray, clusters: int) -> Boxes:
-    """Boxes of ``clusters`` groups of triangles, grouped along a Morton
-    order of their centroids (nearby triangles share a box).  Every triangle
-    lies in its group's box, so the union of boxes covers the mesh."""
-    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    if len(faces) == 0:
-        return Boxes.empty()
-    tri = vertices[faces]                                   # (m, 3, 3)
-    t_lo, t_hi = tri.min(axis=1), tri.max(axis=1)
-    clusters = int(max(1, min(clusters, len(faces))))
-    if clusters == 1:
-        return Boxes(t_lo.min(0)[None], t_hi.max(0)[None])
-    c = 0.5 * (t_lo + t_hi)
-    lo, hi = c.min(0), c.max(0)
-    q = np.floor((c - lo) / np.maximum(hi - lo, 1e-30) * 1023).astype(np.int64)
-    code = np.zeros(len(c), dtype=np.int64)
-    for bit in range(10):
-        for axis in range(3):
-            code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
-    order = np.argsort(code, kind="stable")
-    starts = np.linspace(0, len(faces), clusters + 1).astype(np.int64)[:-1]
-    return Boxes(np.minimum.reduceat(t_lo[order], starts, axis=0),
-                 np.maximum.reduceat(t_hi[order], starts, axis=0))
+    """Boxes of ``clusters`` groups of triangles (:class:`TriangleGroups`)."""
+    return TriangleGroups.of(vertices, faces, clusters).boxes(vertices)
 
 
-def shape_boxes(shape, clusters: int = 1) -> Boxes:
-    """Boxes covering a Mitsuba shape as it is now: triangle clusters of a
-    mesh (its current ``vertex_positions``), the bounding box otherwise."""
-    p = mi.traverse(shape) if clusters > 1 else {}
-    if "vertex_positions" in p and "faces" in p:
-        return triangle_cluster_boxes(np.array(p["vertex_positions"]), np.array(p["faces"]),
-                                      clusters)
+def mesh_arrays(shape):
+    """(vertices (n, 3), faces (m, 3)) of a mesh shape as NumPy, or None."""
+    p = mi.traverse(shape)
+    if "vertex_positions" not in p or "faces" not in p:
+        return None
+    return (np.array(p["vertex_positions"], dtype=np.float64).reshape(-1, 3),
+            np.array(p["faces"], dtype=np.int64).reshape(-1, 3))
+
+
+def shape_boxes(shape, clusters: int = 1, groups: TriangleGroups | None = None) -> Boxes:
+    """Boxes covering a Mitsuba shape as it is now: clusters of a mesh's
+    triangles (``groups``, or a grouping made now), the bounding box of
+    other shapes (or when ``clusters`` is 1)."""
+    mesh = mesh_arrays(shape) if clusters > 1 or groups is not None else None
+    if mesh is not None:
+        groups = groups or TriangleGroups.of(mesh[0], mesh[1], clusters)
+        return groups.boxes(mesh[0])
     bb = shape.bbox()
     return Boxes(np.array(bb.min, dtype=np.float64)[None], np.array(bb.max, dtype=np.float64)[None])
 
