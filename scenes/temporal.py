@@ -37,7 +37,7 @@ def blob_mesh(triangles: int, radius: float = 1.0, seed: int = 0):
     """A closed latitude–longitude sphere with ≈ ``triangles`` triangles,
     its radius modulated by a few random spherical waves (a bumpy,
     model-like silhouette).  Returns (vertices (n, 3), faces (m, 3))."""
-    n_lat = max(4, int(round(np.sqrt(triangles / 4))))
+    n_lat = max(4, int(round((1 + np.sqrt(1 + triangles)) / 2)))   # 4·n_lat·(n_lat − 1) triangles
     n_lon = 2 * n_lat
     rng = np.random.default_rng(seed)
     theta = np.linspace(0, np.pi, n_lat + 1)[1:-1]
