@@ -74,11 +74,6 @@ class Boxes:
     def padded(self, pad: float) -> "Boxes":
         return Boxes(self.lo - pad, self.hi + pad)
 
-    def corners(self, i) -> np.ndarray:
-        """(8, 3): corner k takes hi on axis j iff bit j of k is set."""
-        bits = (np.arange(8)[:, None] >> np.arange(3)[None]) & 1
-        return np.where(bits == 1, self.hi[i][None], self.lo[i][None])
-
 
 # -- bounding boxes of shapes ----------------------------------------------------
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -177,42 +172,44 @@ def light_anchor(light):
 
 def shadow_volume_planes(boxes: Boxes, light) -> np.ndarray:
     """(n, PLANES_PER_VOLUME, 4) half-spaces ``n·x <= c`` (unit ``n``) whose
-    intersection is each box's shadow volume (module doc).  Unused slots are
-    ``0·x <= 1``; a box holding the light has only unused slots (its volume
-    is everything)."""
+    intersection is each box's shadow volume (module doc): slots 0–5 the
+    box faces facing the light, slots 6–17 the supporting planes through
+    its edges and the light (directional: containing ``l``).  Unused slots
+    are ``0·x <= 1``; a box holding a point light has only unused slots (its
+    volume is everything)."""
     kind, a = light_anchor(light)
-    out = np.zeros((len(boxes), PLANES_PER_VOLUME, 4))
+    n = len(boxes)
+    out = np.zeros((n, PLANES_PER_VOLUME, 4))
     out[:, :, 3] = 1.0
+    if n == 0:
+        return out
+    lo, hi = boxes.lo, boxes.hi
     normals = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]],
                        dtype=np.float64)
-    for i in range(len(boxes)):
-        lo, hi = boxes.lo[i], boxes.hi[i]
-        scale = float(np.max(hi - lo)) + 1e-30
-        if kind == "point" and np.all(a >= lo) and np.all(a <= hi):
-            continue
-        planes = []
-        for n in normals:
-            c = float(n @ np.where(n > 0, hi, lo))
-            facing = (n @ a) >= 0 if kind == "directional" else (n @ a) >= c
-            if facing:
-                planes.append((n, c))
-        corners = boxes.corners(i)
-        for ia, ib in _EDGES:
-            pa, pb = corners[ia], corners[ib]
-            m = np.cross(pb - pa, a if kind == "directional" else a - pa)
-            norm = np.linalg.norm(m)
-            arm = 1.0 if kind == "directional" else float(np.linalg.norm(a - pa))
-            if norm <= 1e-12 * float(np.linalg.norm(pb - pa)) * arm:
-                continue   # an edge pointing at the light: its faces bound the volume
-            m = m / norm
-            s = (corners - pa) @ m
-            tol = 1e-9 * scale
-            if np.all(s <= tol):
-                planes.append((m, float(m @ pa)))
-            elif np.all(s >= -tol):
-                planes.append((-m, float(-m @ pa)))
-        for k, (n, c) in enumerate(planes):
-            out[i, k, :3], out[i, k, 3] = n, c
+    c = np.where(normals[None] > 0, hi[:, None], lo[:, None])          # (n, 6, 3) a face point
+    c = np.einsum("fk,nfk->nf", normals, c)
+    facing = (normals @ a)[None] >= 0 if kind == "directional" else (normals @ a)[None] >= c
+    out[:, :6, :3] = np.where(facing[..., None], normals[None], 0.0)
+    out[:, :6, 3] = np.where(facing, c, 1.0)
+    bits = (np.arange(8)[:, None] >> np.arange(3)[None]) & 1
+    corners = np.where(bits[None] == 1, hi[:, None], lo[:, None])       # (n, 8, 3)
+    ia, ib = np.array(_EDGES).T
+    pa, pb = corners[:, ia], corners[:, ib]                             # (n, 12, 3)
+    arm = np.broadcast_to(a, pa.shape) if kind == "directional" else a - pa
+    m = np.cross(pb - pa, arm)
+    norm = np.linalg.norm(m, axis=2)
+    ok = norm > 1e-12 * np.linalg.norm(pb - pa, axis=2) * np.linalg.norm(arm, axis=2)
+    m = m / np.where(ok, norm, 1.0)[..., None]
+    side = np.einsum("nek,njk->nej", m, corners) - np.einsum("nek,nek->ne", m, pa)[..., None]
+    tol = 1e-9 * np.max(hi - lo, axis=1)[:, None, None]
+    below, above = np.all(side <= tol, axis=2), np.all(side >= -tol, axis=2)
+    sign = np.where(below, 1.0, -1.0)
+    use = ok & (below | above)   # an edge pointing at the light: its faces bound the volume
+    out[:, 6:, :3] = np.where(use[..., None], sign[..., None] * m, 0.0)
+    out[:, 6:, 3] = np.where(use, sign * np.einsum("nek,nek->ne", m, pa), 1.0)
+    if kind == "point":
+        inside = np.all((a >= lo) & (a <= hi), axis=1)
+        out[inside, :, :3], out[inside, :, 3] = 0.0, 1.0
     return out
 
 
