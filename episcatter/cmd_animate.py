@@ -58,7 +58,7 @@ def run(args) -> int:
     props = parse_assignments(args.param)
     if args.integrator == "raymarch":
         props.setdefault("visibility", "exact")
-    scene = load_scene(args.scene, defines)
+    scene = load_scene(args.scene, defines, optimize=False)
     integ = make_integrator(args.integrator, props, scene)
     seq = Sequence(scene, integ, [parse_motion(m) for m in args.move], frames=args.frames,
                    reuse=not args.no_reuse, spp=args.spp, seed=args.seed,

@@ -154,7 +154,9 @@ class ShapeAnimator:
             sid = m[1] if isinstance(m, tuple) else m.shape_id
             if sid not in shapes:
                 raise ValueError(f"Moving shape '{sid}' is not in the scene (shapes with ids: "
-                                 f"{sorted(k for k in shapes if k)}): give the shape an id.")
+                                 f"{sorted(k for k in shapes if k)}): give the shape an id, and load the "
+                                 "scene with mi.load_file(..., optimize=False) (Mitsuba merges "
+                                 "meshes with identical BSDFs).")
             if sid not in self.rest:
                 self._remember(sid, shapes[sid])
             if isinstance(m, tuple):

@@ -49,8 +49,10 @@ def parse_assignments(items) -> dict:
     return out
 
 
-def load_scene(path: str, defines: dict | None = None):
-    """mi.load_file with XML defaults; suite assets are built on first use."""
+def load_scene(path: str, defines: dict | None = None, optimize: bool = True):
+    """mi.load_file with XML defaults; suite assets are built on first use.
+    ``optimize=False`` keeps every shape apart (Mitsuba otherwise merges
+    meshes with identical BSDFs, and a moving shape must stay its own)."""
     path = os.path.abspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"Scene file '{path}' does not exist.")
@@ -59,7 +61,7 @@ def load_scene(path: str, defines: dict | None = None):
         import scenes
         scenes.ensure_assets()
     defines = {k: str(v) for k, v in (defines or {}).items()}
-    return mi.load_file(path, **defines)
+    return mi.load_file(path, optimize=optimize, **defines)
 
 
 def make_integrator(kind: str | None, props: dict | None = None, scene=None):

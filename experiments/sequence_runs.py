@@ -25,7 +25,7 @@ from episcatter.sequence import Sequence
 def _pair(scene_path, defines, kind, props, motions, frames, volume_boxes):
     out = []
     for reuse in (False, True):
-        scene = load_scene(scene_path, defines)
+        scene = load_scene(scene_path, defines, optimize=False)
         integ = make_integrator(kind, props)
         out.append(Sequence(scene, integ, [parse_motion(m) for m in motions], frames=frames,
                             reuse=reuse, volume_boxes=volume_boxes, keep_mask=False))
