@@ -32,7 +32,7 @@ import mitsuba as mi
 import numpy as np
 
 from integrators.capture import capture_camera
-from integrators.change_mask import (Boxes, ShadowVolumes, TriangleGroups, change_mask,
+from integrators.change_mask import (ShadowVolumes, TriangleGroups, change_mask,
                                      frame_invariants, mesh_arrays, shape_boxes,
                                      whole_frame_changes)
 from integrators.sample_reuse import reuse_blocker, scattering_of_samples
@@ -91,9 +91,10 @@ class Sequence:
                 self.groups[shape.id()] = TriangleGroups.of(mesh[0], mesh[1], self.volume_boxes)
         self._state = None   # (boxes, d, L_scat, invariants) of the last frame
 
-    def moving_boxes(self) -> Boxes:
-        return Boxes.concat([shape_boxes(s, self.volume_boxes, self.groups.get(s.id()))
-                             for s in self.animator.moving_shapes])
+    def moving_boxes(self) -> list:
+        """Boxes per moving shape (:class:`integrators.change_mask.Boxes`)."""
+        return [shape_boxes(s, self.volume_boxes, self.groups.get(s.id()))
+                for s in self.animator.moving_shapes]
 
     def render_frame(self, k: int) -> FrameResult:
         """Pose, mask, compute and compose frame ``k`` (frames are expected
@@ -125,7 +126,7 @@ class Sequence:
         mask = None
         if previous is not None and not whole:
             def make_mask():
-                vols = ShadowVolumes.from_boxes(Boxes.concat([previous[0], boxes]), params)
+                vols = ShadowVolumes.from_sets(previous[0] + boxes, params)
                 m = change_mask(cap, vols, previous[1])
                 dr.eval(m)
                 return m

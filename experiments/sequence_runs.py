@@ -4,8 +4,8 @@
 :func:`paired_sequences` renders the same animation twice in one process,
 frame by frame alternately: once re-rendering every frame (the baseline),
 once with reuse (:class:`episcatter.sequence.Sequence`), each on its own
-copy of the scene, so machine load hits both alike.  A warm-up pair of two
-frames runs first (kernel compilation, reported apart).  Every reused frame
+copy of the scene, so machine load hits both alike.  A warm-up (one baseline frame, two
+reused frames) runs first (kernel compilation, reported apart).  Every reused frame
 is compared with its baseline frame (the largest difference over the peak
 goes into the rows).  :func:`fit_cost_model` fits Lin et al.'s average cost
 per frame, ``T(n) = (T_background + (n − 1)·T_reused) / n`` (their §4 with
@@ -39,9 +39,9 @@ def paired_sequences(scene_path, defines, kind, props, motions, frames, volume_b
     baseline frame over the baseline's peak.  Returns (rows, warmup_s)."""
     t0 = time.perf_counter()
     warm = _pair(scene_path, defines, kind, props, motions, frames, volume_boxes)
-    for k in range(min(2, frames)):
-        for seq in warm:
-            seq.render_frame(k)
+    warm[0].render_frame(0)                 # the baseline renders every frame alike
+    for k in range(min(2, frames)):         # reuse: a full and a partial frame
+        warm[1].render_frame(k)
     warmup_s = time.perf_counter() - t0
     full_seq, reuse_seq = _pair(scene_path, defines, kind, props, motions, frames, volume_boxes)
     rows = []

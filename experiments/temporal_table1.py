@@ -18,7 +18,7 @@ recorded.
 
 Writes ``results/temporal_table1/``: ``table.md``, ``summary.csv``,
 ``frames.csv``, ``temporal_table1.json``, ``fraction.png``.
-``python -m experiments.temporal_table1 [--quick]``.
+``python -m experiments.temporal_table1 [--quick] [--resolution 1024] [--frames 8]``.
 """
 from __future__ import annotations
 
@@ -34,9 +34,9 @@ PAPER = {"fps_speedup": "1.10-1.41x (dragon, bunny, buddha, yeahRight), reused f
          "baseline": "hybrid ray marching (Wyman & Ramsey 2008), GPU"}
 
 
-def settings_for(quick: bool) -> dict:
-    return {"resolution": [64, 64] if quick else [1024, 1024],
-            "frames": 3 if quick else 8,
+def settings_for(quick: bool, resolution: int = 1024, frames: int = 8) -> dict:
+    return {"resolution": [64, 64] if quick else [resolution, resolution],
+            "frames": 3 if quick else frames,
             "triangles": [50_000] if quick else list(TABLE1_TRIANGLES),
             "integrator": "raymarch",
             "props": {"visibility": "exact", "march": "hybrid", "steps": 64, "volume_boxes": 8},
@@ -47,8 +47,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true")
     p.add_argument("--out", default=None)
+    p.add_argument("--resolution", type=int, default=1024, help="image side (default 1024)")
+    p.add_argument("--frames", type=int, default=8)
     args = p.parse_args(argv)
-    s = settings_for(args.quick)
+    s = settings_for(args.quick, args.resolution, args.frames)
     out = c.output_dir(NAME, args.out, args.quick)
     defines = c.resolution(*s["resolution"])
     summaries, frames = [], []

@@ -216,32 +216,61 @@ def shadow_volume_planes(boxes: Boxes, light) -> np.ndarray:
 @dataclass
 class ShadowVolumes:
     """Plane arrays of ``count`` volumes on the Dr.Jit device (flattened
-    ``PLANES_PER_VOLUME`` per volume), ready for :func:`clip_segments`."""
+    ``PLANES_PER_VOLUME`` per volume), ready for :func:`clip_segments`.
+    Volume ``v`` is a *leaf* (its pieces count) or the *hull* of the leaves
+    that follow it (a segment missing it skips to volume ``skip[v]``)."""
     count: int
     nx: mi.Float
     ny: mi.Float
     nz: mi.Float
     c: mi.Float
+    skip: mi.UInt32
+    leaf: mi.Bool
 
     @staticmethod
     def from_boxes(boxes: Boxes, params, pad: float = PAD) -> "ShadowVolumes":
+        """One leaf volume per box."""
+        return ShadowVolumes.from_sets([Boxes(boxes.lo[i:i + 1], boxes.hi[i:i + 1])
+                                        for i in range(len(boxes))], params, pad)
+
+    @staticmethod
+    def from_sets(sets, params, pad: float = PAD) -> "ShadowVolumes":
+        """Volumes of the boxes of each set (e.g. the clusters of one mesh),
+        a set of several boxes preceded by the hull of its boxes, so that
+        segments far from an object test one volume instead of all."""
+        lo, hi, skip, leaf = [], [], [], []
+        for b in (b for b in sets if len(b)):
+            if len(b) > 1:
+                lo.append(b.lo.min(0, keepdims=True))
+                hi.append(b.hi.max(0, keepdims=True))
+                skip.append(len(skip) + 1 + len(b))
+                leaf.append(False)
+            lo.append(b.lo)
+            hi.append(b.hi)
+            skip += list(range(len(skip) + 1, len(skip) + 1 + len(b)))
+            leaf += [True] * len(b)
+        boxes = Boxes(np.concatenate(lo), np.concatenate(hi)) if lo else Boxes.empty()
         planes = shadow_volume_planes(boxes.padded(pad * params.scene_extent), params.light)
         flat = planes.reshape(-1, 4).astype(np.float32)
         return ShadowVolumes(len(boxes), *(mi.Float(np.ascontiguousarray(flat[:, k]))
-                                           for k in range(4)))
+                                           for k in range(4)),
+                             mi.UInt32(np.array(skip, dtype=np.uint32)),
+                             mi.Bool(np.array(leaf, dtype=bool)))
 
 
-def clip_segments(volumes: ShadowVolumes, o, omega, d):
+def clip_segments(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
     """Cyrus–Beck clipping of the segments ``o + t·ω``, ``t ∈ [0, d]``
-    against every volume.  Returns ``(hit, t_lo, t_hi)``: whether any volume
-    meets the segment and the hull ``[t_lo, t_hi]`` of the pieces inside
-    (``t_lo > t_hi`` where none).  One kernel whatever the volume count."""
+    against every leaf volume (hulls only prune).  Returns ``(hit, t_lo,
+    t_hi)``: whether any leaf meets the segment and the hull ``[t_lo,
+    t_hi]`` of the pieces inside (``t_lo > t_hi`` where none; with
+    ``first_hit`` a segment stops at its first leaf hit, so only ``hit`` is
+    complete).  One kernel whatever the volume count."""
     n = dr.width(d)
     d = mi.Float(d)
     if volumes.count == 0:
         return dr.zeros(mi.Bool, n), dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)
-    total = dr.opaque(mi.UInt32, volumes.count * PLANES_PER_VOLUME)
     P = PLANES_PER_VOLUME
+    total = dr.opaque(mi.UInt32, volumes.count * P)
 
     def body(j, t0, t1, lo, hi):
         nv = mi.Vector3f(dr.gather(mi.Float, volumes.nx, j), dr.gather(mi.Float, volumes.ny, j),
@@ -257,10 +286,16 @@ def clip_segments(volumes: ShadowVolumes, o, omega, d):
         t0 = dr.select(den < 0, dr.maximum(t0, t), t0)
         t1 = dr.select((den == 0) & (num < 0), -1.0, t1)
         last = (j % P) == P - 1
-        inside = last & (t0 <= t1)
+        v = j // P
+        leaf = dr.gather(mi.Bool, volumes.leaf, v, last)
+        meets = last & (t0 <= t1)
+        inside = meets & leaf
         lo = dr.select(inside, dr.minimum(lo, t0), lo)
         hi = dr.select(inside, dr.maximum(hi, t1), hi)
-        return j + 1, t0, t1, lo, hi
+        nxt = dr.select(last & ~meets & ~leaf, dr.gather(mi.UInt32, volumes.skip, v, last) * P, j + 1)
+        if first_hit:
+            nxt = dr.select(inside, total, nxt)
+        return nxt, t0, t1, lo, hi
 
     _, _, _, lo, hi = dr.while_loop(
         state=(mi.UInt32(0), dr.zeros(mi.Float, n), mi.Float(d),
@@ -273,7 +308,7 @@ def change_mask(cap, volumes: ShadowVolumes, previous_d=None) -> mi.Bool:
     """Dirty camera samples of ``cap`` (module doc): the segment meets one of
     ``volumes`` (the moving objects' boxes in the previous and the current
     frame), or ``d`` differs from ``previous_d``."""
-    hit, _, _ = clip_segments(volumes, cap.o, cap.omega, cap.d)
+    hit, _, _ = clip_segments(volumes, cap.o, cap.omega, cap.d, first_hit=True)
     if previous_d is not None:
         hit |= ~(mi.Float(previous_d) == cap.d)
     return hit

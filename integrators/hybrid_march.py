@@ -15,14 +15,13 @@ the plain marcher's with exact visibility, step for step.
 """
 from __future__ import annotations
 
-from .change_mask import Boxes, ShadowVolumes, clip_segments, occluders, shape_boxes
+from .change_mask import ShadowVolumes, clip_segments, occluders, shape_boxes
 
 
 def occluder_volumes(params, clusters: int = 1) -> ShadowVolumes:
     """Bounded shadow volumes of every occluder of the scene, ``clusters``
     boxes per mesh (more boxes: tighter volumes, more planes per ray)."""
-    boxes = Boxes.concat([shape_boxes(s, clusters) for s in occluders(params)])
-    return ShadowVolumes.from_boxes(boxes, params)
+    return ShadowVolumes.from_sets([shape_boxes(s, clusters) for s in occluders(params)], params)
 
 
 def shadow_range(params, cap, clusters: int = 1):

@@ -126,3 +126,27 @@ def test_whole_frame_changes_are_detected():
     p.update()
     c = frame_invariants(SceneParams.from_scene(scene))
     assert whole_frame_changes(b, c) == ["camera", "medium"]
+
+
+@pytest.mark.parametrize("light", ["directional", "point"])
+def test_hulls_only_prune(light):
+    """Sets of boxes behind their hull volume clip exactly like the boxes
+    alone; first_hit gives the same hits."""
+    rng = np.random.default_rng(5)
+    o, w, d = random_segments(rng, 3000)
+    L = LIGHTS[light]
+    sets = [triangle_cluster_boxes(rng.normal(size=(60, 3)) * 0.4 + ctr, rng.integers(0, 60, (80, 3)), 6)
+            for ctr in ([-1.0, 0.2, 0.0], [1.2, -0.5, 0.8])] + [BOXES]
+    flat = Boxes.concat(sets)
+    args = (mi.Point3f(*o.T.astype(np.float32)), mi.Vector3f(*w.T.astype(np.float32)),
+            mi.Float(d.astype(np.float32)))
+    a = [np.array(v) for v in clip_segments(ShadowVolumes.from_boxes(flat, _Params(L)), *args)]
+    grouped = ShadowVolumes.from_sets(sets, _Params(L))
+    assert grouped.count == len(flat) + 3   # a hull per set
+    b = [np.array(v) for v in clip_segments(grouped, *args)]
+    first = np.array(clip_segments(grouped, *args, first_hit=True)[0])
+    print(f"{light}: {a[0].sum()} of {len(d)} segments meet a volume")
+    assert 0 < a[0].sum() < len(d)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(first, a[0])
