@@ -58,12 +58,14 @@ def seed_offset(seed: int, salt: int) -> int:
     return (salt * (int(seed) + 1)) & 0xFFFFFFFFFFFFFFFF
 
 
-def _camera_positions(width, height, spp, jitter, seed):
+def _camera_positions(width, height, spp, jitter, seed, samples=None):
     """Film positions (in [0,1]^2) and pixel indices of spp samples per pixel:
     stratified on a k x k grid when spp = k², else independent; jittered
-    inside each cell or at its centre."""
-    n = width * height * spp
-    idx = dr.arange(mi.UInt32, n)
+    inside each cell or at its centre.  ``samples``: the sample indices
+    (default all, ``pixel·spp + k``); a sample's position depends on its
+    index alone."""
+    idx = dr.arange(mi.UInt32, width * height * spp) if samples is None else mi.UInt32(samples)
+    n = dr.width(idx)
     pixel = idx // spp
     px = mi.Float(pixel % width)
     py = mi.Float(pixel // width)
@@ -99,9 +101,12 @@ class CameraCapture:
         return self.o + self.omega * self.d
 
 
-def capture_camera(params, spp=1, jitter=False, seed=0, surface=True) -> CameraCapture:
+def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
+                   samples=None) -> CameraCapture:
+    """The G-buffer of every camera sample, or of the sample indices
+    ``samples`` alone (each with the values it has in the full capture)."""
     cam, scene, sensor = params.camera, params.scene, params.sensor
-    pos, pixel = _camera_positions(cam.width, cam.height, spp, jitter, seed)
+    pos, pixel = _camera_positions(cam.width, cam.height, spp, jitter, seed, samples)
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
     ray.d = dr.normalize(ray.d)
     si, t_surf = first_surface(scene, ray)
