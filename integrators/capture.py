@@ -24,6 +24,8 @@ import numpy as np
 from .light_transport import (box_exit_distance, color, first_blocker, light_transmittance,
                               point, segment_box, visible_exact)
 
+#: Dr.Jit's default PCG32 stream (drjit/random.h)
+PCG32_DEFAULT_STREAM = 0xDA3E39CB94B95BDB
 #: null-BSDF surfaces a camera or light ray may pass before we give up.
 MAX_NULL_CROSSINGS = 4
 
@@ -70,7 +72,12 @@ def _camera_positions(width, height, spp, jitter, seed, samples=None):
     px = mi.Float(pixel % width)
     py = mi.Float(pixel // width)
     if jitter:
-        rng = mi.PCG32(size=n, initstate=mi.UInt64(idx) + seed_offset(seed, 0x9E3779B97F4A7C15))
+        # seeded by the sample index alone (PCG32(size=...) would add the
+        # position in the array to both state and stream): the full capture's
+        # numbers for any subset of samples
+        rng = mi.PCG32(size=n)
+        i64 = mi.UInt64(idx)
+        rng.seed(i64 * 2 + seed_offset(seed, 0x9E3779B97F4A7C15), i64 + PCG32_DEFAULT_STREAM)
         ox, oy = rng.next_float32(), rng.next_float32()
     else:
         ox = oy = mi.Float(0.5)
