@@ -2,21 +2,21 @@
 "Animations").
 
 A :class:`Sequence` owns the frame state (the integrator stays stateless):
-the previous frame's moving-object boxes, camera-sample distances ``d``,
-L_scat per sample and camera/light/medium parameters.  For each frame it
+the previous frame's moving-object boxes, camera capture, L_scat per sample
+and camera/light/medium parameters.  For each frame it
 
 1. poses the moving shapes (:class:`episcatter.motion.ShapeAnimator`);
-2. reads the scene and captures the camera G-buffer (every sample: cheap,
-   and the surface term is re-lit every frame);
-3. computes the change mask before any scattering work
-   (:func:`integrators.change_mask.change_mask`): the samples whose segment
-   meets a moving object's bounded shadow volume in the previous or the
-   current frame, or whose ``d`` changed; every sample when the camera,
-   light or medium changed (:func:`integrators.change_mask.whole_frame_changes`)
-   or on the first frame;
-4. asks the integrator for the dirty samples alone
-   (:func:`integrators.sample_reuse.scattering_of_samples`) and keeps the
-   rest; there is no periodic refresh;
+2. reads the scene (camera, light, medium);
+3. computes the change mask before any capture or scattering work
+   (:func:`integrators.change_mask.change_mask`, on the last frame's
+   capture): the samples whose segment meets a moving object's bounded
+   shadow volume in the previous or the current frame; every sample when
+   the camera, light or medium changed
+   (:func:`integrators.change_mask.whole_frame_changes`) or on the first
+   frame;
+4. captures and computes the dirty samples alone
+   (:func:`integrators.sample_reuse.render_samples`) and keeps the rest
+   (G-buffer and L_scat); there is no periodic refresh;
 5. composes the layers as the render template does.
 
 A reused frame equals a full render of that frame to float rounding (the
@@ -35,7 +35,7 @@ from integrators.capture import capture_camera
 from integrators.change_mask import (ShadowVolumes, TriangleGroups, change_mask,
                                      frame_invariants, mesh_arrays, shape_boxes,
                                      whole_frame_changes)
-from integrators.sample_reuse import reuse_blocker, scattering_of_samples
+from integrators.sample_reuse import render_samples, reuse_blocker
 from integrators.scene_params import SceneParams
 from integrators.template import pixel_average, to_image
 
@@ -113,12 +113,15 @@ class Sequence:
         t_start = time.perf_counter()
         timed("motion", lambda: self.animator.apply(k, self.frames))
         params = timed("validate", lambda: SceneParams.from_scene(self.scene))
-        jitter = integ.jitter_pixels if integ.jitter_pixels is not None else self.spp > 1
-        cap = timed("capture", lambda: capture_camera(params, spp=self.spp, jitter=bool(jitter),
-                                                      seed=self.seed, surface=integ.output == "full"))
+        jitter = bool(integ.jitter_pixels if integ.jitter_pixels is not None else self.spp > 1)
+
+        def capture(samples):
+            return timed("capture", lambda: capture_camera(
+                params, spp=self.spp, jitter=jitter, seed=self.seed,
+                surface=integ.output == "full", samples=samples))
+
         invariants = frame_invariants(params)
         boxes = self.moving_boxes()
-        n = dr.width(cap.d)
         previous = self._state
         whole = whole_frame_changes(previous[3] if previous else None, invariants)
         if not self.reuse:
@@ -126,18 +129,20 @@ class Sequence:
         mask = None
         if previous is not None and not whole:
             def make_mask():
-                vols = ShadowVolumes.from_sets(previous[0] + boxes, params)
-                m = change_mask(cap, vols, previous[1])
+                m = change_mask(previous[1], ShadowVolumes.from_sets(previous[0] + boxes, params))
                 dr.eval(m)
                 return m
             mask = timed("mask", make_mask)
         integ.render_seed = self.seed
 
-        def scatter():
-            L = scattering_of_samples(integ, params, cap, mask, previous[2] if previous else None)
-            dr.eval(L)
-            return L
-        L_scat = timed("scattering", scatter)
+        def compute():
+            out = render_samples(integ, params, capture, mask,
+                                 previous[1:3] if previous else None)
+            dr.eval(out[1], out[0].d, out[0].T_cam, out[0].L_surface)
+            return out
+        cap, L_scat = timed("scattering", compute)
+        timings["scattering"] -= timings.get("capture", 0.0)
+        n = dr.width(cap.d)
         mask_np = None if mask is None else np.array(mask)
         recomputed = n if mask is None else int(np.count_nonzero(mask_np))
 
@@ -155,7 +160,7 @@ class Sequence:
         timings.update({f"scattering.{k2}": v for k2, v in integ.timings.items()
                         if k2 != "scattering"})
         timings["total"] = time.perf_counter() - t_start
-        self._state = (boxes, cap.d, L_scat, invariants)
+        self._state = (boxes, cap, L_scat, invariants)
         return FrameResult(index=k, layers={key: np.array(v) for key, v in layers.items()},
                            recomputed=recomputed, samples=n, whole_frame=whole, timings=timings,
                            mask=(np.ones(n, bool) if mask is None else mask_np)

@@ -8,8 +8,9 @@ light and medium fixed), ``V(x)`` can change only where the light ray from
 ``x`` meets the object in one of the two frames, i.e. inside the object's
 *shadow volume* there; ``d`` changes only where the camera ray meets it.
 So a sample is *dirty* (must be recomputed) when its segment meets the
-shadow volume of a moving object in the previous or the current frame, or
-its ``d`` changed; every other sample keeps its value exactly.
+shadow volume of a moving object in the previous or the current frame
+(which also catches every sample whose ``d`` changes, :func:`change_mask`);
+every other sample keeps its value exactly.
 
 The shadow volume is bounded conservatively: each object is covered by
 axis-aligned boxes (its bounding box, or the boxes of clusters of its
@@ -304,14 +305,15 @@ def clip_segments(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
     return lo <= hi, lo, hi
 
 
-def change_mask(cap, volumes: ShadowVolumes, previous_d=None) -> mi.Bool:
-    """Dirty camera samples of ``cap`` (module doc): the segment meets one of
-    ``volumes`` (the moving objects' boxes in the previous and the current
-    frame), or ``d`` differs from ``previous_d``."""
-    hit, _, _ = clip_segments(volumes, cap.o, cap.omega, cap.d, first_hit=True)
-    if previous_d is not None:
-        hit |= ~(mi.Float(previous_d) == cap.d)
-    return hit
+def change_mask(cap, volumes: ShadowVolumes) -> mi.Bool:
+    """Dirty camera samples (module doc) from the *previous* frame's capture
+    ``cap``: its segment ``[0, d_prev]`` meets one of ``volumes`` (the moving
+    objects' boxes in the previous and the current frame).  No new capture
+    is needed: if the current camera ray stops earlier, at a moving object,
+    that point lies on ``[0, d_prev]`` inside the object's current box; if
+    it stops later, the previous stop was on the object, inside its previous
+    box; otherwise the segment is the same."""
+    return clip_segments(volumes, cap.o, cap.omega, cap.d, first_hit=True)[0]
 
 
 # -- whole-frame changes -----------------------------------------------------------

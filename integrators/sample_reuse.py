@@ -5,19 +5,23 @@ Until the render template takes a sample mask itself (``render_layers(...,
 samples=mask)`` with a ``widen_samples`` hook per method), this module does
 it for the methods whose camera samples are independent of each other:
 ``raymarch`` with exact visibility (``march`` full or hybrid) evaluates each
-sample from its own ray alone, so the dirty samples are gathered into a
-capture of their own (:func:`integrators.epipolar_setup.subset_capture`),
-marched, and scattered back.  A shadow-mapped marcher fits its map to all
+sample from its own ray alone, so the dirty samples alone are captured
+(:func:`integrators.capture.capture_camera` with ``samples``), marched, and
+scattered back into the last frame's capture and L_scat
+(:func:`render_samples`): the cost of a frame follows the dirty fraction,
+capture included.  A shadow-mapped marcher fits its map to all
 samples of the frame and the jittered marcher draws its random offsets by
 position in the capture: neither gives a sample the value it has in a full
 render, so both are refused (:func:`reuse_blocker`).
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import drjit as dr
 import mitsuba as mi
 
-from .epipolar_setup import subset_capture
+from .capture import CameraCapture
 
 
 def reuse_blocker(integrator) -> str | None:
@@ -38,18 +42,35 @@ def reuse_blocker(integrator) -> str | None:
     return None
 
 
-def scattering_of_samples(integrator, params, cap, mask, previous):
-    """L_scat per camera sample of ``cap``: the method's own value where
-    ``mask`` is set, ``previous`` (the last frame's values) elsewhere.
-    ``mask=None`` computes every sample."""
-    if mask is None or previous is None:
-        return integrator.scattering(params, cap)
-    idx = dr.compress(mi.Bool(mask))
-    out = mi.Color3f(previous)
-    if dr.width(idx) == 0:
+def merge_samples(previous: CameraCapture, part: CameraCapture, idx) -> CameraCapture:
+    """``previous`` with the samples ``idx`` replaced by those of ``part``
+    (a capture of exactly those samples, in that order)."""
+    def put(t, old, new):
+        out = t(old)
+        dr.scatter(out, new, idx)
         return out
-    if dr.width(idx) == dr.width(cap.d):
-        return integrator.scattering(params, cap)
-    values = integrator.scattering(params, subset_capture(cap, idx))
-    dr.scatter(out, values, idx)
-    return out
+    return replace(previous, d=put(mi.Float, previous.d, part.d),
+                   T_cam=put(mi.Color3f, previous.T_cam, part.T_cam),
+                   L_surface=put(mi.Color3f, previous.L_surface, part.L_surface),
+                   hit=put(mi.Bool, previous.hit, part.hit))
+
+
+def render_samples(integrator, params, capture, mask=None, previous=None):
+    """``(cap, L_scat)`` of a frame: every sample (``mask`` or ``previous``
+    None: ``capture()`` of all samples, then the method's scattering), or
+    only the samples in ``mask``: ``capture(idx)`` of those alone, their
+    scattering, both scattered into ``previous = (cap, L_scat)`` of the last
+    frame.  ``capture(samples)`` returns the camera capture of the sample
+    indices ``samples`` (None: all)."""
+    if mask is None or previous is None:
+        cap = capture(None)
+        return cap, integrator.scattering(params, cap)
+    prev_cap, prev_L = previous
+    idx = dr.compress(mi.Bool(mask))
+    if dr.width(idx) == 0:
+        return prev_cap, prev_L
+    part = capture(idx)
+    values = integrator.scattering(params, part)
+    L = mi.Color3f(prev_L)
+    dr.scatter(L, values, idx)
+    return merge_samples(prev_cap, part, idx), L
