@@ -22,6 +22,7 @@ COMMANDS = {
     "bench": "time and error of integrators on scenes, with parameter sweeps",
     "epipolar": "epipolar geometry diagnostics of a scene",
     "frontier": "time-vs-error frontiers of every method and speedups read off them",
+    "animate": "render an animation of moving shapes, reusing what they do not change",
 }
 
 

@@ -62,11 +62,13 @@ def prepare_scene_file(path: str) -> str:
     return path
 
 
-def load_scene(path: str, defines: dict | None = None):
-    """mi.load_file with XML defaults; suite assets are built on first use."""
+def load_scene(path: str, defines: dict | None = None, optimize: bool = True):
+    """mi.load_file with XML defaults; suite assets are built on first use.
+    ``optimize=False`` keeps every shape apart (Mitsuba otherwise merges
+    meshes with identical BSDFs, and a moving shape must stay its own)."""
     path = prepare_scene_file(path)
     defines = {k: str(v) for k, v in (defines or {}).items()}
-    return mi.load_file(path, **defines)
+    return mi.load_file(path, optimize=optimize, **defines)
 
 
 def make_integrator(kind: str | None, props: dict | None = None, scene=None):

@@ -73,17 +73,22 @@ def sample_rng(index: mi.UInt32, state: int) -> mi.PCG32:
     return rng
 
 
-def _camera_positions(width, height, spp, jitter, seed):
+def _camera_positions(width, height, spp, jitter, seed, samples=None):
     """Film positions (in [0,1]^2) and pixel indices of spp samples per pixel:
     stratified on a k x k grid when spp = k², else independent; jittered
-    inside each cell or at its centre."""
-    n = width * height * spp
-    idx = dr.arange(mi.UInt32, n)
+    inside each cell or at its centre.  ``samples``: the sample indices
+    (default all, ``pixel·spp + k``); a sample's position depends on its
+    index alone."""
+    idx = dr.arange(mi.UInt32, width * height * spp) if samples is None else mi.UInt32(samples)
+    n = dr.width(idx)
     pixel = idx // spp
     px = mi.Float(pixel % width)
     py = mi.Float(pixel // width)
     if jitter:
-        rng = mi.PCG32(size=n, initstate=mi.UInt64(idx) + seed_offset(seed, 0x9E3779B97F4A7C15))
+        # seeded by the sample index alone (PCG32(size=...) would add the
+        # position in the array to both state and stream): the full capture's
+        # numbers for any subset of samples
+        rng = sample_rng(idx, seed_offset(seed, 0x9E3779B97F4A7C15))
         ox, oy = rng.next_float32(), rng.next_float32()
     else:
         ox = oy = mi.Float(0.5)
@@ -145,9 +150,12 @@ class CameraCapture:
                              sample=take(self.sample_index()), parent=self.whole())
 
 
-def capture_camera(params, spp=1, jitter=False, seed=0, surface=True) -> CameraCapture:
+def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
+                   samples=None) -> CameraCapture:
+    """The G-buffer of every camera sample, or of the sample indices
+    ``samples`` alone (each with the values it has in the full capture)."""
     cam, scene, sensor = params.camera, params.scene, params.sensor
-    pos, pixel = _camera_positions(cam.width, cam.height, spp, jitter, seed)
+    pos, pixel = _camera_positions(cam.width, cam.height, spp, jitter, seed, samples)
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
     ray.d = dr.normalize(ray.d)
     si, t_surf = first_surface(scene, ray)
@@ -160,7 +168,8 @@ def capture_camera(params, spp=1, jitter=False, seed=0, surface=True) -> CameraC
         L_surface = surface_direct_lighting(params, si, ray)
     cap = CameraCapture(width=cam.width, height=cam.height, spp=spp, pixel=pixel,
                         o=ray.o, omega=ray.d, d=d, T_cam=T_cam, L_surface=L_surface,
-                        hit=si.is_valid())
+                        hit=si.is_valid(),
+                        sample=None if samples is None else mi.UInt32(samples))
     dr.eval(cap.o, cap.omega, cap.d, cap.T_cam, cap.L_surface, cap.hit)
     return cap
 

@@ -45,8 +45,12 @@ def step_boundaries(params, cap, steps, spacing):
     return t_of
 
 
-def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform"):
-    """L_scat per camera sample by ``steps`` analytic segments (see module doc)."""
+def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform",
+          shadow_range=None):
+    """L_scat per camera sample by ``steps`` analytic segments (see module doc).
+    ``shadow_range = (t_lo, t_hi)`` per sample (Wyman & Ramsey 2008): exact
+    visibility is traced only at points with ``t`` in it, ``V = 1`` elsewhere
+    (:func:`integrators.hybrid_march.shadow_range`)."""
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
     sigma_s = color(params.medium.sigma_s)
@@ -60,11 +64,14 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
 
     def body(k, L):
         s = mi.Float(k)
-        x = cap.o + cap.omega * t_of(s + offset)
+        t = t_of(s + offset)
+        x = cap.o + cap.omega * t
         wo, dist, L_light = sample_light(params, x)
         tau, t_in, t_out = segment_box(params, x, wo, dist)
         if shadow_map is None:
-            V = dr.select(visible_exact(params, x, wo, dist, t_in, t_out), 1.0, 0.0)
+            active = True if shadow_range is None else \
+                (t >= shadow_range[0]) & (t <= shadow_range[1])
+            V = dr.select(visible_exact(params, x, wo, dist, t_in, t_out, active), 1.0, 0.0)
         else:
             V = shadow_map.visibility(x)
         f_p = phase_eval(params, cap.omega, wo, x)

@@ -25,6 +25,12 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
                            the angle seen from a point/spot light: short
                            segments where 1/r² peaks) or ``auto`` (default:
                            equiangular for point/spot, uniform otherwise)
+``march``                  ``full`` (default) or ``hybrid`` (Wyman & Ramsey
+                           2008, :mod:`integrators.hybrid_march`: exact
+                           visibility traced only inside the occluders'
+                           bounded shadow volumes; needs ``visibility=exact``)
+``volume_boxes``           boxes per occluder mesh bounding its shadow
+                           volume for ``hybrid`` (default 8)
 =========================  ==================================================
 """
 from __future__ import annotations
@@ -32,6 +38,7 @@ from __future__ import annotations
 import mitsuba as mi
 
 from .capture import capture_shadow_map
+from .hybrid_march import shadow_range
 from .marching import auto_spacing, march
 from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
 
@@ -44,6 +51,11 @@ class RaymarchIntegrator(EpiscatterIntegrator):
                                                 minimum=1, maximum=32768, integer=True)
         self.jitter = read_bool(props, "jitter", False)
         self.spacing = read_choice(props, "spacing", "auto", ("auto", "uniform", "equiangular"))
+        self.march = read_choice(props, "march", "full", ("full", "hybrid"))
+        self.volume_boxes = read_number(props, "volume_boxes", 8, minimum=1, integer=True)
+        if self.march == "hybrid" and self.visibility != "exact":
+            raise ValueError("Property 'march' = 'hybrid' traces exact visibility inside the "
+                             "shadow volumes: set visibility='exact' (or march='full').")
 
     def scattering(self, params, cap):
         shadow_map = None
@@ -51,8 +63,11 @@ class RaymarchIntegrator(EpiscatterIntegrator):
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
         spacing = auto_spacing(params) if self.spacing == "auto" else self.spacing
+        t_range = None
+        if self.march == "hybrid":
+            with self.stage("shadow_volumes") as keep:
+                t_range = shadow_range(params, cap, self.volume_boxes)
+                keep.extend(t_range)
         return march(params, cap, self.steps, shadow_map, self.jitter, self.render_record.seed,
-                     spacing)
-
-
+                     spacing, t_range)
 mi.register_integrator("raymarch", lambda props: RaymarchIntegrator(props))

@@ -358,11 +358,19 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         """Every layer of one render (see the module doc; ``samples``: an
         optional boolean mask over the camera samples, mi.Bool or NumPy)."""
         variant = check_variant()
-        seed = scalar_seed(seed)
-        record = RenderRecord(seed=seed)
+        with self.recording(seed) as record:
+            return self._render_layers(scene, sensor, record.seed, spp, samples, record, variant)
+
+    @contextmanager
+    def recording(self, seed=0):
+        """The record (seed, stage timings, stats) of one render, current
+        while the block runs: :meth:`stage` and :meth:`record` write into it.
+        ``render_layers`` opens one; callers that drive the stages
+        themselves (a sequence's partial frames) open their own."""
+        record = RenderRecord(seed=scalar_seed(seed))
         token = _RECORD.set(record)
         try:
-            return self._render_layers(scene, sensor, seed, spp, samples, record, variant)
+            yield record
         finally:
             _RECORD.reset(token)
 

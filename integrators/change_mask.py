@@ -1,0 +1,386 @@
+"""Bounded shadow volumes and the temporal change mask (Lin et al. §3;
+Wyman & Ramsey 2008 for the volumes).
+
+A camera sample's single scattering ``L_scat = ∫_0^d ... V(x(t)) dt``
+depends on the scene only through its segment ``[0, d]`` and the visibility
+``V`` of the points on it.  When an object moves between two frames (camera,
+light and medium fixed), ``V(x)`` can change only where the light ray from
+``x`` meets the object in one of the two frames, i.e. inside the object's
+*shadow volume* there; ``d`` changes only where the camera ray meets it.
+So a sample is *dirty* (must be recomputed) when its segment meets the
+shadow volume of a moving object in the previous or the current frame
+(which also catches every sample whose ``d`` changes, :func:`change_mask`);
+every other sample keeps its value exactly.
+
+The shadow volume is bounded conservatively: each object is covered by
+axis-aligned boxes (its bounding box, or the boxes of clusters of its
+triangles, :func:`shape_boxes`), and each box ``B`` is extruded away from
+the light to infinity:
+
+* directional light toward ``l``: ``SV(B) = {x : x + s·l ∈ B for some s ≥ 0}``;
+* point/spot light at ``p``: ``SV(B) = {p + λ(y − p) : y ∈ B, λ ≥ 1}``
+  (the spot cone is ignored: conservative).
+
+Both are convex polyhedra (the box's faces that face the light plus the
+supporting planes through the light and the box's silhouette edges;
+:func:`shadow_volume_planes`), so a camera segment meets one iff
+Cyrus–Beck clipping against its planes leaves a non-empty interval
+``[t0, t1]`` (:func:`clip_segments`, Dr.Jit, one kernel for any number of
+volumes).  A light inside a box makes that volume everything.  Every box is
+padded by ``PAD`` (relative to the medium box's diagonal) to absorb float
+rounding of the ray tests.
+
+:func:`change_mask_reference` is the slow, obvious NumPy twin: dense points
+along each segment, each tested by a slab test of its own light ray against
+the boxes.  :func:`whole_frame_changes` detects (never assumes) a moved
+camera, light or changed medium, which makes every sample dirty.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+#: box padding relative to the medium box's diagonal (float rounding of ray tests)
+PAD = 1e-4
+#: planes stored per volume: 6 faces + 12 edge planes; unused slots never cut
+PLANES_PER_VOLUME = 18
+
+_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8)
+          if bin(a ^ b).count("1") == 1]   # corner k = (x bit 0, y bit 1, z bit 2)
+
+
+@dataclass(frozen=True)
+class Boxes:
+    """Axis-aligned boxes ``[lo[i], hi[i]]`` (NumPy float64, shape (n, 3))."""
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def __len__(self):
+        return len(self.lo)
+
+    @staticmethod
+    def empty() -> "Boxes":
+        return Boxes(np.zeros((0, 3)), np.zeros((0, 3)))
+
+    @staticmethod
+    def concat(parts) -> "Boxes":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return Boxes.empty()
+        return Boxes(np.concatenate([p.lo for p in parts]), np.concatenate([p.hi for p in parts]))
+
+    def padded(self, pad: float) -> "Boxes":
+        return Boxes(self.lo - pad, self.hi + pad)
+
+
+# -- bounding boxes of shapes ----------------------------------------------------
+def _spread_bits(q: np.ndarray) -> np.ndarray:
+    """10-bit integers -> every third bit (for 30-bit Morton codes)."""
+    q = q.astype(np.int64) & 0x3FF
+    q = (q | (q << 16)) & 0x030000FF
+    q = (q | (q << 8)) & 0x0300F00F
+    q = (q | (q << 4)) & 0x030C30C3
+    return (q | (q << 2)) & 0x09249249
+
+
+@dataclass(frozen=True)
+class TriangleGroups:
+    """A fixed grouping of a mesh's triangles into clusters (along a Morton
+    order of their first vertices, so nearby triangles share a cluster):
+    ``vertex_index`` lists the vertices of each cluster's triangles (each
+    once), cluster by cluster, cluster ``g`` starting at ``starts[g]``.  Any grouping bounds the mesh
+    (every triangle lies in its cluster's box); a grouping made at the rest
+    pose stays tight under rigid motion, so animations make it once."""
+    vertex_index: np.ndarray
+    starts: np.ndarray
+
+    @staticmethod
+    def of(vertices: np.ndarray, faces: np.ndarray, clusters: int) -> "TriangleGroups":
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        clusters = int(max(1, min(clusters, len(faces))))
+        order = np.arange(len(faces))
+        if clusters > 1:
+            c = vertices[faces[:, 0]]
+            lo, hi = c.min(0), c.max(0)
+            q = np.floor((c - lo) / np.maximum(hi - lo, 1e-30) * 1023)
+            code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << 1) | (_spread_bits(q[:, 2]) << 2)
+            order = np.argsort(code, kind="stable")
+        group = np.empty(len(faces), dtype=np.int64)
+        group[order] = np.arange(len(faces)) * clusters // max(1, len(faces))
+        n = max(1, len(vertices))
+        # each (cluster, vertex) pair once, sorted by cluster
+        marks = np.zeros(clusters * n, dtype=bool)
+        marks[np.repeat(group, 3) * n + faces.ravel()] = True
+        pairs = np.flatnonzero(marks)
+        starts = np.searchsorted(pairs // n, np.arange(clusters))
+        return TriangleGroups(pairs % n, starts)
+
+    def boxes(self, vertices: np.ndarray) -> Boxes:
+        """The clusters' boxes for the mesh's ``vertices`` (n, 3) now."""
+        if len(self.vertex_index) == 0:
+            return Boxes.empty()
+        p = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)[self.vertex_index]
+        return Boxes(np.minimum.reduceat(p, self.starts, axis=0),
+                     np.maximum.reduceat(p, self.starts, axis=0))
+
+
+def triangle_cluster_boxes(vertices: np.ndarray, faces: np.ndarray, clusters: int) -> Boxes:
+    """Boxes of ``clusters`` groups of triangles (:class:`TriangleGroups`)."""
+    return TriangleGroups.of(vertices, faces, clusters).boxes(vertices)
+
+
+def mesh_arrays(shape):
+    """(vertices (n, 3), faces (m, 3)) of a mesh shape as NumPy, or None."""
+    p = mi.traverse(shape)
+    if "vertex_positions" not in p or "faces" not in p:
+        return None
+    return (np.array(p["vertex_positions"], dtype=np.float64).reshape(-1, 3),
+            np.array(p["faces"], dtype=np.int64).reshape(-1, 3))
+
+
+def shape_boxes(shape, clusters: int = 1, groups: TriangleGroups | None = None) -> Boxes:
+    """Boxes covering a Mitsuba shape as it is now: clusters of a mesh's
+    triangles (``groups``, or a grouping made now), the bounding box of
+    other shapes (or when ``clusters`` is 1)."""
+    mesh = mesh_arrays(shape) if clusters > 1 or groups is not None else None
+    if mesh is not None:
+        groups = groups or TriangleGroups.of(mesh[0], mesh[1], clusters)
+        return groups.boxes(mesh[0])
+    bb = shape.bbox()
+    return Boxes(np.array(bb.min, dtype=np.float64)[None], np.array(bb.max, dtype=np.float64)[None])
+
+
+def occluders(params):
+    """Every shape of the scene that can block light (all but the medium
+    boundary, which exact visibility passes)."""
+    med = params.medium.medium
+    return [s for s in params.scene.shapes()
+            if not (s.interior_medium() is not None and med is not None
+                    and s.interior_medium().ptr == med.ptr)]
+
+
+# -- the extruded volumes as planes ------------------------------------------------
+def light_anchor(light):
+    """('directional', l toward the light) or ('point', light position)."""
+    if light.kind == "directional":
+        return "directional", np.asarray(light.direction, dtype=np.float64)
+    return "point", np.asarray(light.position, dtype=np.float64)
+
+
+def shadow_volume_planes(boxes: Boxes, light) -> np.ndarray:
+    """(n, PLANES_PER_VOLUME, 4) half-spaces ``n·x <= c`` (unit ``n``) whose
+    intersection is each box's shadow volume (module doc): slots 0–5 the
+    box faces facing the light, slots 6–17 the supporting planes through
+    its edges and the light (directional: containing ``l``).  Unused slots
+    are ``0·x <= 1``; a box holding a point light has only unused slots (its
+    volume is everything)."""
+    kind, a = light_anchor(light)
+    n = len(boxes)
+    out = np.zeros((n, PLANES_PER_VOLUME, 4))
+    out[:, :, 3] = 1.0
+    if n == 0:
+        return out
+    lo, hi = boxes.lo, boxes.hi
+    normals = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]],
+                       dtype=np.float64)
+    c = np.where(normals[None] > 0, hi[:, None], lo[:, None])          # (n, 6, 3) a face point
+    c = np.einsum("fk,nfk->nf", normals, c)
+    facing = (normals @ a)[None] >= 0 if kind == "directional" else (normals @ a)[None] >= c
+    out[:, :6, :3] = np.where(facing[..., None], normals[None], 0.0)
+    out[:, :6, 3] = np.where(facing, c, 1.0)
+    bits = (np.arange(8)[:, None] >> np.arange(3)[None]) & 1
+    corners = np.where(bits[None] == 1, hi[:, None], lo[:, None])       # (n, 8, 3)
+    ia, ib = np.array(_EDGES).T
+    pa, pb = corners[:, ia], corners[:, ib]                             # (n, 12, 3)
+    arm = np.broadcast_to(a, pa.shape) if kind == "directional" else a - pa
+    m = np.cross(pb - pa, arm)
+    norm = np.linalg.norm(m, axis=2)
+    ok = norm > 1e-12 * np.linalg.norm(pb - pa, axis=2) * np.linalg.norm(arm, axis=2)
+    m = m / np.where(ok, norm, 1.0)[..., None]
+    side = np.einsum("nek,njk->nej", m, corners) - np.einsum("nek,nek->ne", m, pa)[..., None]
+    tol = 1e-9 * np.max(hi - lo, axis=1)[:, None, None]
+    below, above = np.all(side <= tol, axis=2), np.all(side >= -tol, axis=2)
+    sign = np.where(below, 1.0, -1.0)
+    use = ok & (below | above)   # an edge pointing at the light: its faces bound the volume
+    out[:, 6:, :3] = np.where(use[..., None], sign[..., None] * m, 0.0)
+    out[:, 6:, 3] = np.where(use, sign * np.einsum("nek,nek->ne", m, pa), 1.0)
+    if kind == "point":
+        inside = np.all((a >= lo) & (a <= hi), axis=1)
+        out[inside, :, :3], out[inside, :, 3] = 0.0, 1.0
+    return out
+
+
+@dataclass
+class ShadowVolumes:
+    """Plane arrays of ``count`` volumes on the Dr.Jit device (flattened
+    ``PLANES_PER_VOLUME`` per volume), ready for :func:`clip_segments`.
+    Volume ``v`` is a *leaf* (its pieces count) or the *hull* of the leaves
+    that follow it (a segment missing it skips to volume ``skip[v]``)."""
+    count: int
+    nx: mi.Float
+    ny: mi.Float
+    nz: mi.Float
+    c: mi.Float
+    skip: mi.UInt32
+    leaf: mi.Bool
+
+    @staticmethod
+    def from_boxes(boxes: Boxes, params, pad: float = PAD) -> "ShadowVolumes":
+        """One leaf volume per box."""
+        return ShadowVolumes.from_sets([Boxes(boxes.lo[i:i + 1], boxes.hi[i:i + 1])
+                                        for i in range(len(boxes))], params, pad)
+
+    @staticmethod
+    def from_sets(sets, params, pad: float = PAD) -> "ShadowVolumes":
+        """Volumes of the boxes of each set (e.g. the clusters of one mesh),
+        a set of several boxes preceded by the hull of its boxes, so that
+        segments far from an object test one volume instead of all."""
+        lo, hi, skip, leaf = [], [], [], []
+        for b in (b for b in sets if len(b)):
+            if len(b) > 1:
+                lo.append(b.lo.min(0, keepdims=True))
+                hi.append(b.hi.max(0, keepdims=True))
+                skip.append(len(skip) + 1 + len(b))
+                leaf.append(False)
+            lo.append(b.lo)
+            hi.append(b.hi)
+            skip += list(range(len(skip) + 1, len(skip) + 1 + len(b)))
+            leaf += [True] * len(b)
+        boxes = Boxes(np.concatenate(lo), np.concatenate(hi)) if lo else Boxes.empty()
+        planes = shadow_volume_planes(boxes.padded(pad * params.scene_extent), params.light)
+        flat = planes.reshape(-1, 4).astype(np.float32)
+        return ShadowVolumes(len(boxes), *(mi.Float(np.ascontiguousarray(flat[:, k]))
+                                           for k in range(4)),
+                             mi.UInt32(np.array(skip, dtype=np.uint32)),
+                             mi.Bool(np.array(leaf, dtype=bool)))
+
+
+def clip_segments(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
+    """Cyrus–Beck clipping of the segments ``o + t·ω``, ``t ∈ [0, d]``
+    against every leaf volume (hulls only prune).  Returns ``(hit, t_lo,
+    t_hi)``: whether any leaf meets the segment and the hull ``[t_lo,
+    t_hi]`` of the pieces inside (``t_lo > t_hi`` where none; with
+    ``first_hit`` a segment stops at its first leaf hit, so only ``hit`` is
+    complete).  One kernel whatever the volume count."""
+    n = dr.width(d)
+    d = mi.Float(d)
+    if volumes.count == 0:
+        return dr.zeros(mi.Bool, n), dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)
+    P = PLANES_PER_VOLUME
+    total = dr.opaque(mi.UInt32, volumes.count * P)
+
+    def body(j, t0, t1, lo, hi):
+        nv = mi.Vector3f(dr.gather(mi.Float, volumes.nx, j), dr.gather(mi.Float, volumes.ny, j),
+                         dr.gather(mi.Float, volumes.nz, j))
+        c = dr.gather(mi.Float, volumes.c, j)
+        first = (j % P) == 0
+        t0 = dr.select(first, 0.0, t0)
+        t1 = dr.select(first, d, t1)
+        den = dr.dot(nv, omega)
+        num = c - dr.dot(nv, mi.Vector3f(o))
+        t = num / dr.select(den == 0, 1.0, den)
+        t1 = dr.select(den > 0, dr.minimum(t1, t), t1)
+        t0 = dr.select(den < 0, dr.maximum(t0, t), t0)
+        t1 = dr.select((den == 0) & (num < 0), -1.0, t1)
+        last = (j % P) == P - 1
+        v = j // P
+        leaf = dr.gather(mi.Bool, volumes.leaf, v, last)
+        meets = last & (t0 <= t1)
+        inside = meets & leaf
+        lo = dr.select(inside, dr.minimum(lo, t0), lo)
+        hi = dr.select(inside, dr.maximum(hi, t1), hi)
+        nxt = dr.select(last & ~meets & ~leaf, dr.gather(mi.UInt32, volumes.skip, v, last) * P, j + 1)
+        if first_hit:
+            nxt = dr.select(inside, total, nxt)
+        return nxt, t0, t1, lo, hi
+
+    _, _, _, lo, hi = dr.while_loop(
+        state=(mi.UInt32(0), dr.zeros(mi.Float, n), mi.Float(d),
+               dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)),
+        cond=lambda j, *_: j < total, body=body)
+    return lo <= hi, lo, hi
+
+
+def change_mask(cap, volumes: ShadowVolumes) -> mi.Bool:
+    """Dirty camera samples (module doc) from the *previous* frame's capture
+    ``cap``: its segment ``[0, d_prev]`` meets one of ``volumes`` (the moving
+    objects' boxes in the previous and the current frame).  No new capture
+    is needed: if the current camera ray stops earlier, at a moving object,
+    that point lies on ``[0, d_prev]`` inside the object's current box; if
+    it stops later, the previous stop was on the object, inside its previous
+    box; otherwise the segment is the same."""
+    return clip_segments(volumes, cap.o, cap.omega, cap.d, first_hit=True)[0]
+
+
+# -- whole-frame changes -----------------------------------------------------------
+def frame_invariants(params) -> dict:
+    """What every sample depends on besides the occluders: camera, light and
+    medium parameters as NumPy arrays (compared by :func:`whole_frame_changes`)."""
+    cam, light, med = params.camera, params.light, params.medium
+    em = mi.traverse(light.emitter)
+    ph = mi.traverse(med.phase)
+    return {
+        "camera": np.concatenate([cam.origin, cam.forward, cam.x_axis, cam.y_axis,
+                                  [cam.width, cam.height, cam.near_clip]]),
+        "light": np.concatenate([np.ravel(np.array(em[k], dtype=np.float64)) for k in sorted(em.keys())
+                                 if _numeric(em[k])] + [[len(light.kind)]]),
+        "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max]
+                                 + [np.ravel(np.array(ph[k], dtype=np.float64))
+                                    for k in sorted(ph.keys()) if _numeric(ph[k])]),
+    }
+
+
+def _numeric(value) -> bool:
+    try:
+        np.array(value, dtype=np.float64)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def whole_frame_changes(previous: dict | None, current: dict) -> list[str]:
+    """Names (``camera``, ``light``, ``medium``) whose parameters differ
+    between two :func:`frame_invariants`; all of them for the first frame."""
+    if previous is None:
+        return sorted(current)
+    return [k for k in sorted(current)
+            if previous[k].shape != current[k].shape or not np.array_equal(previous[k], current[k])]
+
+
+# -- the NumPy oracle ----------------------------------------------------------------
+def in_shadow_volume_reference(x: np.ndarray, boxes: Boxes, light) -> np.ndarray:
+    """Per point of ``x`` (n, 3): does its light ray (toward a directional
+    light, or the segment to a point/spot light) meet one of ``boxes``?
+    Slab test in float64."""
+    kind, a = light_anchor(light)
+    x = np.asarray(x, dtype=np.float64)
+    w = np.broadcast_to(a, x.shape) if kind == "directional" else a - x
+    s_max = np.inf if kind == "directional" else 1.0
+    out = np.zeros(len(x), dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for lo, hi in zip(boxes.lo, boxes.hi):
+            t0, t1 = (lo - x) / w, (hi - x) / w
+            near = np.nanmax(np.where(w == 0, np.where((x >= lo) & (x <= hi), -np.inf, np.inf),
+                                      np.minimum(t0, t1)), axis=1)
+            far = np.nanmin(np.where(w == 0, np.where((x >= lo) & (x <= hi), np.inf, -np.inf),
+                                     np.maximum(t0, t1)), axis=1)
+            out |= np.maximum(near, 0.0) <= np.minimum(far, s_max)
+    return out
+
+
+def change_mask_reference(o, omega, d, boxes: Boxes, light, samples: int = 512) -> np.ndarray:
+    """Dense-sampling oracle of the shadow-volume part of :func:`change_mask`:
+    ``samples`` points on each segment ``o + t·ω``, ``t ∈ [0, d]`` (both ends
+    included), each tested by :func:`in_shadow_volume_reference`."""
+    o, omega, d = (np.asarray(v, dtype=np.float64) for v in (o, omega, d))
+    t = np.linspace(0.0, 1.0, samples)
+    out = np.zeros(len(d), dtype=bool)
+    for k in range(0, len(d), 256):
+        sl = slice(k, k + 256)
+        x = o[sl, None] + omega[sl, None] * (d[sl, None, None] * t[None, :, None])
+        out[sl] = in_shadow_volume_reference(x.reshape(-1, 3), boxes, light).reshape(-1, samples).any(1)
+    return out
