@@ -288,12 +288,14 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
     # -- per-render record and timing --------------------------------------------
     @property
     def render_record(self) -> RenderRecord:
-        """The record of the render in progress (seed, timings, stats)."""
+        """The record of the render in progress (seed, timings, stats); a
+        method's stages called on their own, outside any render (tests,
+        experiments), write into a detached record with seed 0 that nobody
+        reads (open :meth:`recording` to keep it)."""
         try:
             return _RECORD.get()
         except LookupError:
-            raise RuntimeError(f"{type(self).__name__}: no render is in progress "
-                               "(call render_layers or mi.render).") from None
+            return RenderRecord()
 
     def record(self, **stats) -> None:
         """Add named values to the running render's ``RenderResult.stats``."""
