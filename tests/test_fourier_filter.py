@@ -298,7 +298,6 @@ def test_unshadowed_medium_matches_the_closed_form(weights, rectification):
     out, result = render(sc, "fourier_filter", weights=weights, slices=400, light_rays=512,
                          svd_tolerance=1e-6, rectification=rectification)
     assert result.stats["rectification_used"] == rectification
-    assert result.timings.get("prefilter", 0.0) < 0.05       # no filter ran
     expected = unshadowed_directional(p, res, samples=20000)
     np.testing.assert_allclose(out, expected, rtol=2e-3)
 
