@@ -27,8 +27,8 @@ from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, 
                                 projective_rectification, projective_rows)
 
 from .capture import capture_shadow_map
-from .epipolar_local_light import (light_ray_factor, local_kernel, local_light_ray_grid,
-                                   local_query_terms, local_separated_kernel, query_x_max,
+from .epipolar_local_light import (light_ray_factor, local_light_ray_grid,
+                                   local_query_terms, local_separated_kernel,
                                    shadow_map_local_blocker_angles, trace_local_blocker_angles)
 from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
                              directional_query_terms, epipolar_frame_of, light_ray_grid,
@@ -36,12 +36,13 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
                              trace_blocker_angles)
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
+from .fourier_references import decay_length, interpolated_sum, reference_rays, row_kernel
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,
                             projective_query_terms, projective_x_range, query_beta_range,
                             rectified_shadow_map, reference_angle, series_sum,
                             series_visibility, shadowed_sum, texel_blocker_angles,
-                            texel_integral, texel_separated_kernel)
+                            texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
 
@@ -278,6 +279,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         self.M = check_M(M)
         self.weights = read_choice(props, "weights", "reference_ray", WEIGHTS)
         self.reference = read_choice(props, "reference", "bisectrix", REFERENCES)
+        self.reference_rays = read_number(props, "reference_rays", 0, minimum=0,
+                                          maximum=256, integer=True)
         self.regions = read_number(props, "regions", 1, minimum=1, maximum=64, integer=True)
         self.clamp = read_bool(props, "clamp", True)
         self.fit_depth = read_bool(props, "fit_depth", False)
@@ -396,11 +399,12 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 A, B = separate(params, queries, rays, self.svd_rank, self.svd_tolerance)
             keep.extend([A, B])
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+        length = decay_length(params, queries, cap)
         U, V = [], []
         for c in range(channels(L, A)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                         float(sigma_t[c]))
+                                         float(sigma_t[c]), length)
             U.append(U_c)
             V.append(V_c)
         return RectifiedSums(rays, beta_b, U, V, colour)
@@ -425,16 +429,24 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         read = shadow_map_local_blocker_angles if local else shadow_map_blocker_angles
         return read(params, queries, rays, shadow_map, 1)
 
-    def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float):
+    def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float,
+                     length: float = 0.0):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
-        with ``clamp``, Appendix A)."""
+        with ``clamp``, Appendix A); ``length``: the decay length of the
+        reference rays (:func:`~integrators.fourier_references.decay_length`)."""
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
+        refs = None
+        if self.weights == "reference_ray":
+            refs = reference_rays(queries, sigma_t, length, self.reference_rays)
         if self.weights == "exact":
             S = self.exact_sum(queries, smap, cover, parts)
             V = dr.select(U > 0.0, S / U, 1.0)
+        elif refs is not None and refs.count > 1:      # several reference rays per row
+            V = self.interpolated_average(params, queries, rays, smap, cover, parts.L,
+                                          sigma_t, refs)
         else:
             w = parts.L * (texel_size(rays) if self.weights == "average" else
                            reference_kernel(params, queries, rays, sigma_t, self.reference))
@@ -457,6 +469,19 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             V = series_visibility(smap, fb, queries, cover, opt, clamp)
             keep.append(V)
         return V
+
+    def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
+                             refs):
+        """Weighted average visibility with the weights of each query's mix
+        of its two nearest reference rays (:mod:`integrators.fourier_references`),
+        one filter per reference ray."""
+        def weighted_sum(k, active):
+            w = L * row_kernel(params, queries, rays, sigma_t, refs.beta[k])
+            V_series = self.filtered(queries, smap, cover, w, self.clamp)
+            return shadowed_sum(smap, cover, w, V_series), cover.sum(w)
+
+        S, P = interpolated_sum(refs, weighted_sum)
+        return dr.select(P > 0.0, S / P, 1.0)
 
     def filtered_average(self, queries, smap, cover, w, clamp: bool):
         """Weighted average visibility with one filter of weights ``w``
@@ -619,27 +644,11 @@ def row_shift(a, smap) -> mi.Float:
 
 def reference_kernel(params, queries, rays, sigma_t: float, how: str) -> mi.Float:
     """K(γ, β_ref) per light ray (n·d): the weights of the slice's reference
-    ray (§3.2, Eq. 11; the light side included).  Directional:
-    e^{-σt γ_g tan(β_ref/2)} at the light ray's start γ_g (equal light rays:
-    the factor of the interval's mean is common to the row).  Projective
-    texels: the integral of that kernel over the texel, Eq. 12
-    (:func:`~integrators.fourier_setup.texel_integral`).  Point/spot:
-    the mean over the light ray's interval of e^{-σt (t + r − L)} f_p(β_ref + γ)
-    (:func:`~integrators.epipolar_local_light.local_kernel`): the phase
-    function of the reference ray at each light ray is the "angular
-    dependency" of §3.2, next to the light's own (intensity, fall-off,
-    texture) in L."""
+    ray (§3.2, Eq. 11; the light side included), β_ref by
+    :func:`~integrators.fourier_setup.reference_angle`; the kernel itself is
+    :func:`~integrators.fourier_references.row_kernel`."""
     lo, hi = query_beta_range(queries)
-    tan_ref = dr.tan(0.5 * reference_angle(lo, hi, how))
-    s, gamma = rays.positions(0.0)
-    tan_ref = dr.gather(mi.Float, tan_ref, s)
-    if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
-        return texel_integral(gamma, rays.widths(), sigma_t * tan_ref)
-    if not is_local(params):
-        return dr.exp(-sigma_t * gamma * tan_ref)
-    return local_kernel(params, sigma_t, float(queries.frame.light_distance),
-                        query_x_max(queries), tan_ref, gamma,
-                        dr.gather(mi.Float, rays.delta_gamma, s))
+    return row_kernel(params, queries, rays, sigma_t, reference_angle(lo, hi, how))
 
 
 def near_visibility(queries, rays, beta_b) -> mi.Float:
