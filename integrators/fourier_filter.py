@@ -30,12 +30,13 @@ from .capture import capture_shadow_map
 from .epipolar_local_light import (light_ray_factor, local_light_ray_grid,
                                    local_query_terms, local_separated_kernel,
                                    shadow_map_local_blocker_angles, trace_local_blocker_angles)
-from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays,
+from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choose_slices,
                              directional_query_terms, epipolar_frame_of, light_ray_grid,
                              light_side_factor, shadow_map_blocker_angles,
                              trace_blocker_angles)
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
+from .fourier_rows import rectified_size, row_spacing
 from .fourier_references import decay_length, interpolated_sum, reference_rays, row_kernel
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,
@@ -306,8 +307,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         ``self.rectification_used`` says which the last render took."""
         plan = self.projective_plan(params, cap)
         self.rectification_used = "epipolar" if plan is None else "projective"
-        if plan is None:
-            return super().choose_rows(params, cap)
+        if plan is None:     # Baran's slices, fine enough on small images (fourier_rows)
+            frame = epipolar_frame_of(params)
+            cam = params.camera
+            spacing = row_spacing(self.slice_spacing, cam.width, cam.height)
+            return frame, choose_slices(frame, self.slices, spacing), None
         return plan.frame, plan.rows.slices, plan
 
     def projective_plan(self, params, cap) -> "ProjectivePlan | None":
@@ -569,7 +573,8 @@ def auto_texels(params, queries, cap) -> int:
         length = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
     else:
         length = float(dr.max(queries.gamma_end)[0])
-    d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)), length)
+    width, height = rectified_size(cam.width, cam.height)
+    d = auto_light_rays(width, height, float(np.max(params.medium.sigma_t)), length)
     return max(d, min(TEXEL_FACTOR * d, MAX_AUTO_TEXELS))
 
 
