@@ -37,7 +37,8 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choos
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
 from .fourier_rows import rectified_size, row_spacing
-from .fourier_references import decay_length, interpolated_sum, reference_rays, row_kernel
+from .fourier_references import (decay_length, interpolated_sum, reference_rays,
+                                 restrict_rows, row_kernel)
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,
                             projective_query_terms, projective_x_range, query_beta_range,
@@ -479,9 +480,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """Weighted average visibility with the weights of each query's mix
         of its two nearest reference rays (:mod:`integrators.fourier_references`),
         one filter per reference ray."""
-        def weighted_sum(k, active):
+        def weighted_sum(k, rows):
             w = L * row_kernel(params, queries, rays, sigma_t, refs.beta[k])
-            V_series = self.filtered(queries, smap, cover, w, self.clamp)
+            sub = smap if k < 2 else restrict_rows(smap, rows)
+            V_series = self.filtered(queries, sub, cover, w, self.clamp)
             return shadowed_sum(smap, cover, w, V_series), cover.sum(w)
 
         S, P = interpolated_sum(refs, weighted_sum)

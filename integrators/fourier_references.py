@@ -39,7 +39,7 @@ NumPy oracle: :func:`interpolated_kernel_reference`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -49,9 +49,9 @@ from .epipolar_local_light import local_kernel, query_x_max
 from .fourier_setup import ProjectiveLightRays, query_beta_range, texel_integral
 
 #: spacing of the reference rays in s = log(1 + σt tan(β/2) ℓ)
-SPACING = 0.25
+SPACING = 0.3
 #: most reference rays per row of the automatic count
-MAX_REFERENCE_RAYS = 24
+MAX_REFERENCE_RAYS = 16
 
 
 def decay_length(params, queries, cap) -> float:
@@ -75,20 +75,23 @@ def decay_angle(s, sigma_t: float, length: float):
     return 2.0 * dr.atan((dr.exp(s) - 1.0) / (sigma_t * length))
 
 
-def auto_reference_rays(span: float, spacing: float = SPACING,
-                        max_rays: int = MAX_REFERENCE_RAYS) -> int:
-    """Reference rays for a largest row span ``span`` of s: one per
-    ``spacing`` plus the end, at least 1 (one ray: Klehm's own method)."""
-    if not span > 0.0:
-        return 1
-    return int(min(max_rays, max(1, math.ceil(span / spacing) + 1)))
+def auto_reference_rays(span, spacing: float = SPACING, max_rays: int = MAX_REFERENCE_RAYS):
+    """Reference rays of a row whose queries span ``span`` in s: one per
+    ``spacing`` plus the end, from 1 (Klehm's single ray) to ``max_rays``
+    (NumPy or Dr.Jit, per row)."""
+    if isinstance(span, (int, float, np.floating)):
+        return int(min(max_rays, max(1, math.ceil(span / spacing) + 1))) if span > 0 else 1
+    count = dr.ceil(span / spacing) + 1.0
+    return mi.UInt32(dr.select(span > 0.0, dr.clip(count, 1.0, float(max_rays)), 1.0))
 
 
 @dataclass(eq=False)
 class ReferenceRays:
-    """``count`` reference rays per row and every query's place among them."""
-    count: int
-    beta: list            # ``count`` arrays (n,): β_k of every row
+    """Up to ``count`` reference rays per row (row r has ``counts[r]``) and
+    every query's place among its row's."""
+    count: int            # the most of any row
+    counts: mi.UInt32     # (n,) reference rays of every row
+    beta: list            # ``count`` arrays (n,): β_k of every row (k < counts[r])
     node: mi.UInt32       # (Q,) k: the query's lower reference ray
     frac: mi.Float        # (Q,) f ∈ [0, 1]: its position toward ray k + 1
 
@@ -97,37 +100,46 @@ class ReferenceRays:
         f = self.frac
         return dr.select(self.node == k, 1.0 - f, dr.select(self.node + 1 == k, f, 0.0))
 
+    def rows_with(self, k: int) -> mi.Bool:
+        """(n,) the rows that have a reference ray ``k``."""
+        return self.counts > k
+
 
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
                    spacing: float = SPACING) -> ReferenceRays:
     """Reference rays equally spaced in s over each row's β range (module
-    doc); ``count`` = 0: :func:`auto_reference_rays` of the widest row's
-    span.  σt ℓ ≈ 0 (no decay): the rays are equally spaced in β."""
+    doc); ``count`` = 0: :func:`auto_reference_rays` per row, else ``count``
+    in every row (1: the bisectrix, Klehm's).  σt ℓ ≈ 0 (no decay): the
+    rays are equally spaced in β."""
     lo, hi = query_beta_range(queries)
     rate = float(sigma_t) * float(length)
-    if rate > 1e-6:
+    decays = rate > 1e-6
+    if decays:
         s_lo, s_hi = (decay_coordinate(b, sigma_t, length) for b in (lo, hi))
         s_q = decay_coordinate(queries.beta, sigma_t, length)
     else:
         s_lo, s_hi, s_q = lo, hi, queries.beta
     span = dr.select(dr.isfinite(s_hi - s_lo), s_hi - s_lo, 0.0)
     if count == 0:
-        count = auto_reference_rays(float(dr.max(span)[0]) if rate > 1e-6 else 0.0, spacing)
-    if count == 1:
-        mid = 0.5 * (lo + hi)
-        return ReferenceRays(1, [mid], dr.zeros(mi.UInt32, queries.count),
-                             dr.zeros(mi.Float, queries.count))
+        counts = auto_reference_rays(span if decays else dr.zeros(mi.Float, dr.width(span)),
+                                     spacing)
+    else:
+        counts = dr.full(mi.UInt32, count, dr.width(span))
+    K = int(dr.max(counts)[0]) if dr.width(counts) else 1
+    last = mi.Float(dr.maximum(counts, 2) - 1)          # intervals of a row (≥ 1)
     beta = []
-    for k in range(count):
-        s_k = s_lo + span * (k / (count - 1))
-        b_k = decay_angle(s_k, sigma_t, length) if rate > 1e-6 else s_k
+    for k in range(K):
+        s_k = dr.select(counts > 1, s_lo + span * (k / last), s_lo + 0.5 * span)
+        b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
         beta.append(dr.select(span > 0.0, b_k, lo))
     span_q = dr.gather(mi.Float, span, queries.row)
+    last_q = dr.gather(mi.Float, last, queries.row)
     u = dr.select(span_q > 0.0,
-                  (s_q - dr.gather(mi.Float, s_lo, queries.row)) / span_q * (count - 1), 0.0)
-    u = dr.clip(u, 0.0, float(count - 1))
-    node = dr.minimum(mi.UInt32(u), count - 2)
-    return ReferenceRays(count, beta, node, u - mi.Float(node))
+                  (s_q - dr.gather(mi.Float, s_lo, queries.row)) / span_q * last_q, 0.0)
+    u = dr.clip(u, 0.0, last_q)
+    node = dr.minimum(mi.UInt32(u), mi.UInt32(last_q) - 1)
+    frac = dr.select(dr.gather(mi.UInt32, counts, queries.row) > 1, u - mi.Float(node), 0.0)
+    return ReferenceRays(K, counts, beta, node, frac)
 
 
 def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
@@ -157,17 +169,26 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
 
 def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:
     """(S, P) per query: Σ_k share_k S_k and Σ_k share_k P_k, where
-    ``weighted_sum(k, active)`` returns (S_k, P_k), the shadowed and the
-    unshadowed weighted sums of reference ray k for the queries in
-    ``active`` (the ones whose mix holds ray k)."""
+    ``weighted_sum(k, rows)`` returns (S_k, P_k), the shadowed and the
+    unshadowed weighted sums of reference ray k (needed only in the
+    ``rows`` that have one, :meth:`ReferenceRays.rows_with`)."""
     S = dr.zeros(mi.Float, dr.width(refs.frac))
     P = dr.zeros(mi.Float, dr.width(refs.frac))
     for k in range(refs.count):
         share = refs.share(k)
-        S_k, P_k = weighted_sum(k, share > 0.0)
+        S_k, P_k = weighted_sum(k, refs.rows_with(k))
         S += dr.select(share > 0.0, share * S_k, 0.0)
         P += dr.select(share > 0.0, share * P_k, 0.0)
     return S, P
+
+
+def restrict_rows(smap, rows: mi.Bool):
+    """The rectified shadow map with only ``rows`` (n,) filtered (the
+    others' queries read visibility 1 from the series, their texels keep
+    their classes): a reference ray's filter runs over the rows that have it."""
+    filtered = smap.filtered & rows
+    frow = dr.prefix_sum(dr.select(filtered, mi.UInt32(1), mi.UInt32(0)))
+    return replace(smap, filtered=filtered, rows=dr.compress(filtered), frow=frow)
 
 
 def interpolated_kernel_reference(gamma, beta, beta_lo, beta_hi, sigma_t: float,

@@ -95,7 +95,7 @@ def hall(lit: bool) -> SceneXML:
                  "fog extending far beyond the building")
     s.medium(Medium(sigma_t=0.02, albedo=0.9, phase=Phase("hg", 0.3)))
     w, L, H, t = h["half_width"], h["half_length"], h["height"], h["wall"]
-    s.camera((0.8, 1.5, -16.5), (-0.5, 4.5, 10.0), fov=70.0)
+    s.camera((0.8, 1.5, -16.5), (-0.5, 8.5, 0.0), fov=70.0)
     s.directional(HALL_SUN, irradiance=(24.0, 22.0, 19.0))
     paint = Palette(s, lit)
     wall = paint("wall_bsdf", (0.55, 0.5, 0.45))
