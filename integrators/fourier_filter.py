@@ -36,6 +36,7 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choos
                              trace_blocker_angles)
 from .epipolar_tree import separated_kernel
 from .fourier_basis import check_M, region_length
+from .fourier_exact import exact_average
 from .fourier_rows import rectified_size, row_spacing
 from .fourier_references import (decay_length, interpolated_sum, reference_rays,
                                  restrict_rows, row_kernel)
@@ -49,6 +50,11 @@ from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
+#: ``visibility``: the Fourier filter (Klehm) or the direct sum (fourier_exact)
+VISIBILITIES = ("auto", "exact", "filter")
+#: properties of the Fourier filter: setting one makes ``visibility="auto"`` the filter
+FILTER_PROPERTIES = ("coefficients", "weights", "reference", "reference_rays", "regions",
+                     "clamp", "fit_depth", "exact_bounds", "depth_range")
 RECTIFICATIONS = ("auto", "epipolar", "projective")
 BLOCKERS = ("traced", "resampled")
 #: default ``projective_min_angle`` [deg]: ``auto`` takes the projective map
@@ -274,6 +280,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     """
 
     def read_method_properties(self, props):
+        explicit_filter = any(k in props for k in FILTER_PROPERTIES)
         M = read_number(props, "coefficients", 32, minimum=2, maximum=1024, integer=True)
         if M % 2:
             raise ValueError(f"Property 'coefficients' = {M} must be even (sines and "
@@ -281,6 +288,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         self.M = check_M(M)
         self.weights = read_choice(props, "weights", "reference_ray", WEIGHTS)
         self.reference = read_choice(props, "reference", "bisectrix", REFERENCES)
+        self.visibility = read_choice(props, "visibility", "auto", VISIBILITIES)
+        #: ``auto``: the exact sum, unless a property of the filter asks for it
+        self.visibility_used = (self.visibility if self.visibility != "auto" else
+                                "filter" if explicit_filter else "exact")
         self.reference_rays = read_number(props, "reference_rays", 0, minimum=0,
                                           maximum=256, integer=True)
         self.regions = read_number(props, "regions", 1, minimum=1, maximum=64, integer=True)
@@ -409,7 +420,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         for c in range(channels(L, A)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                         float(sigma_t[c]), length)
+                                         float(sigma_t[c]), length, beta_b)
             U.append(U_c)
             V.append(V_c)
         return RectifiedSums(rays, beta_b, U, V, colour)
@@ -435,7 +446,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return read(params, queries, rays, shadow_map, 1)
 
     def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float,
-                     length: float = 0.0):
+                     length: float = 0.0, beta_b=None):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
         with ``clamp``, Appendix A); ``length``: the decay length of the
@@ -443,6 +454,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
+        if self.visibility_used == "exact":    # the direct sum (fourier_exact), no series
+            with self.stage("evaluate") as keep:
+                V = exact_average(params, queries, rays, beta_b, cover, parts.L, sigma_t)
+                keep.append(V)
+            return U, V
         refs = None
         if self.weights == "reference_ray":
             refs = reference_rays(queries, sigma_t, length, self.reference_rays)
