@@ -171,7 +171,33 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     gain in a ray tracer), hence ``auto`` (below).  Blockers are traced (or read
     from the shadow map) along the light ray through each texel centre.
 
+    ``visibility`` chooses how the weighted visibility V̄ is obtained:
+    ``filter`` (Klehm's Fourier filter, everything above), ``exact`` (the
+    direct sum Σ_γ L K(γ, β) V cover over the covered texels with each
+    query's own kernel, :mod:`integrators.fourier_exact`: no ringing, no
+    leak into shadowed fog, no weighting error; ``D`` gathers per query
+    instead of ``2 M`` plus the prefilter), or ``auto`` (default):
+    ``exact``, unless one of the filter's own properties (``coefficients``,
+    ``weights``, ``reference``, ``reference_rays``, ``regions``, ``clamp``,
+    ``fit_depth``, ``exact_bounds``, ``depth_range``) is set, then
+    ``filter`` -- so ``coefficients=32`` reproduces the paper.
+
+    ``reference_rays`` (filter, ``weights="reference_ray"``): Klehm's single
+    reference ray per row is right only while the medium is thin across the
+    row (its kernel e^{-σt γ tan(β/2)} then differs little between the
+    row's view rays); several reference rays per row, each query's
+    weights the mix of its two nearest
+    (:mod:`integrators.fourier_references`), keep the energy in thick
+    media.  0 (default): automatic per row; 1: the paper's.
+
+    Images smaller than 32 px on the long side get finer slices and more
+    light rays (:mod:`integrators.fourier_rows`).
+
     =========================  =============================================
+    ``visibility``             ``auto`` (default) | ``exact`` | ``filter``
+                               (above)
+    ``reference_rays``         reference rays per row of ``reference_ray``
+                               (0: automatic, 1: Klehm's single ray)
     ``coefficients``           M, Fourier coefficients, sines and cosines
                                counted apart (even, default 32, §5)
     ``weights``                ``average`` | ``reference_ray`` (default) |
