@@ -180,7 +180,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     ``exact``, unless one of the filter's own properties (``coefficients``,
     ``weights``, ``reference``, ``reference_rays``, ``regions``, ``clamp``,
     ``fit_depth``, ``exact_bounds``, ``depth_range``) is set, then
-    ``filter`` -- so ``coefficients=32`` reproduces the paper.
+    ``filter`` -- so ``coefficients=32`` reproduces the paper; point and
+    spot lights take the filter under ``auto`` (the direct sum evaluates
+    their kernel per texel and query: many times the filter's cost).
 
     ``reference_rays`` (filter, ``weights="reference_ray"``): Klehm's single
     reference ray per row is right only while the medium is thin across the
@@ -480,7 +482,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
-        if self.visibility_used == "exact":    # the direct sum (fourier_exact), no series
+        if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
             with self.stage("evaluate") as keep:
                 V = exact_average(params, queries, rays, beta_b, cover, parts.L, sigma_t)
                 keep.append(V)
@@ -503,6 +505,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 V = dr.clip(V, 0.0, 1.0)
             keep.append(V)
         return U, V
+
+    def exact_visibility(self, params) -> bool:
+        """The direct sum: ``visibility="exact"``, or ``auto`` without filter
+        properties for a directional light (point/spot lights keep the
+        filter under ``auto``: their kernel per texel and query makes the
+        direct sum many times the filter's cost)."""
+        if self.visibility_used != "exact":
+            return False
+        return self.visibility == "exact" or not is_local(params)
 
     def filtered(self, queries, smap, cover, w, clamp: bool):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
