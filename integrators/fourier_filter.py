@@ -27,22 +27,31 @@ from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, 
                                 projective_rectification, projective_rows)
 
 from .capture import capture_shadow_map
-from .epipolar_local_light import local_kernel, query_x_max
-from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, epipolar_frame_of,
-                             shadow_map_blocker_angles, trace_blocker_angles)
+from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choose_slices,
+                             epipolar_frame_of, shadow_map_blocker_angles,
+                             trace_blocker_angles)
 from .kernel_separation import separated_kernel
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
+from .fourier_exact import exact_average
+from .fourier_rows import rectified_size, row_spacing
+from .fourier_references import (decay_length, interpolated_sum, reference_rays,
+                                 restrict_rows, row_kernel)
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,
                             projective_query_terms, projective_x_range, query_beta_range,
                             rectified_shadow_map, reference_angle, series_sum,
                             series_visibility, shadowed_sum, texel_blocker_angles,
-                            texel_integral, texel_separated_kernel)
+                            texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
+#: ``visibility``: the Fourier filter (Klehm) or the direct sum (fourier_exact)
+VISIBILITIES = ("auto", "exact", "filter")
+#: properties of the Fourier filter: setting one makes ``visibility="auto"`` the filter
+FILTER_PROPERTIES = ("coefficients", "weights", "reference", "reference_rays", "regions",
+                     "clamp", "fit_depth", "exact_bounds", "depth_range")
 RECTIFICATIONS = ("auto", "epipolar", "projective")
 BLOCKERS = ("traced", "resampled")
 #: default ``projective_min_angle`` [deg]: ``auto`` takes the projective map
@@ -159,7 +168,35 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     gain in a ray tracer), hence ``auto`` (below).  Blockers are traced (or read
     from the shadow map) along the light ray through each texel centre.
 
+    ``visibility`` chooses how the weighted visibility V̄ is obtained:
+    ``filter`` (Klehm's Fourier filter, everything above), ``exact`` (the
+    direct sum Σ_γ L K(γ, β) V cover over the covered texels with each
+    query's own kernel, :mod:`integrators.fourier_exact`: no ringing, no
+    leak into shadowed fog, no weighting error; ``D`` gathers per query
+    instead of ``2 M`` plus the prefilter), or ``auto`` (default):
+    ``exact``, unless one of the filter's own properties (``coefficients``,
+    ``weights``, ``reference``, ``reference_rays``, ``regions``, ``clamp``,
+    ``fit_depth``, ``exact_bounds``, ``depth_range``) is set, then
+    ``filter`` -- so ``coefficients=32`` reproduces the paper; point and
+    spot lights take the filter under ``auto`` (the direct sum evaluates
+    their kernel per texel and query: many times the filter's cost).
+
+    ``reference_rays`` (filter, ``weights="reference_ray"``): Klehm's single
+    reference ray per row is right only while the medium is thin across the
+    row (its kernel e^{-σt γ tan(β/2)} then differs little between the
+    row's view rays); several reference rays per row, each query's
+    weights the mix of its two nearest
+    (:mod:`integrators.fourier_references`), keep the energy in thick
+    media.  0 (default): automatic per row; 1: the paper's.
+
+    Images smaller than 32 px on the long side get finer slices and more
+    light rays (:mod:`integrators.fourier_rows`).
+
     =========================  =============================================
+    ``visibility``             ``auto`` (default) | ``exact`` | ``filter``
+                               (above)
+    ``reference_rays``         reference rays per row of ``reference_ray``
+                               (0: automatic, 1: Klehm's single ray)
     ``coefficients``           M, Fourier coefficients, sines and cosines
                                counted apart (even, default 32, §5)
     ``weights``                ``average`` | ``reference_ray`` (default) |
@@ -268,6 +305,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     """
 
     def read_method_properties(self, props):
+        explicit_filter = any(k in props for k in FILTER_PROPERTIES)
         M = read_number(props, "coefficients", 32, minimum=2, maximum=1024, integer=True)
         if M % 2:
             raise ValueError(f"Property 'coefficients' = {M} must be even (sines and "
@@ -275,6 +313,12 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         self.M = check_M(M)
         self.weights = read_choice(props, "weights", "reference_ray", WEIGHTS)
         self.reference = read_choice(props, "reference", "bisectrix", REFERENCES)
+        self.visibility = read_choice(props, "visibility", "auto", VISIBILITIES)
+        #: ``auto``: the exact sum, unless a property of the filter asks for it
+        self.visibility_used = (self.visibility if self.visibility != "auto" else
+                                "filter" if explicit_filter else "exact")
+        self.reference_rays = read_number(props, "reference_rays", 0, minimum=0,
+                                          maximum=256, integer=True)
         self.regions = read_number(props, "regions", 1, minimum=1, maximum=64, integer=True)
         self.clamp = read_bool(props, "clamp", True)
         self.fit_depth = read_bool(props, "fit_depth", False)
@@ -299,8 +343,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         the render's ``stats["rectification_used"]`` says which it took."""
         plan = self.projective_plan(params, cap)
         self.record(rectification_used="epipolar" if plan is None else "projective")
-        if plan is None:
-            return super().choose_rows(params, cap)
+        if plan is None:     # Baran's slices, fine enough on small images (fourier_rows)
+            frame = epipolar_frame_of(params)
+            cam = params.camera
+            spacing = row_spacing(self.slice_spacing, cam.width, cam.height)
+            return frame, choose_slices(frame, self.slices, spacing), None
         return plan.frame, plan.rows.slices, plan
 
     def projective_plan(self, params, cap) -> "ProjectivePlan | None":
@@ -387,11 +434,12 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               self.svd_tolerance)
             keep.extend([A, B])
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+        length = decay_length(params, queries, cap)
         U, V = [], []
         for c in range(channels(L, A)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                         float(sigma_t[c]))
+                                         float(sigma_t[c]), length, beta_b)
             U.append(U_c)
             V.append(V_c)
         return RectifiedSums(rays, beta_b, U, V, colour)
@@ -413,16 +461,29 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
         return model.resample_blockers(params, queries, rays, shadow_map, 1)
 
-    def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float):
+    def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float,
+                     length: float = 0.0, beta_b=None):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
-        with ``clamp``, Appendix A)."""
+        with ``clamp``, Appendix A); ``length``: the decay length of the
+        reference rays (:func:`~integrators.fourier_references.decay_length`)."""
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
+        if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
+            with self.stage("evaluate") as keep:
+                V = exact_average(params, queries, rays, beta_b, cover, parts.L, sigma_t)
+                keep.append(V)
+            return U, V
+        refs = None
+        if self.weights == "reference_ray":
+            refs = reference_rays(queries, sigma_t, length, self.reference_rays)
         if self.weights == "exact":
             S = self.exact_sum(queries, smap, cover, parts)
             V = dr.select(U > 0.0, S / U, 1.0)
+        elif refs is not None and refs.count > 1:      # several reference rays per row
+            V = self.interpolated_average(params, queries, rays, smap, cover, parts.L,
+                                          sigma_t, refs)
         else:
             w = parts.L * (texel_size(rays) if self.weights == "average" else
                            reference_kernel(params, queries, rays, sigma_t, self.reference))
@@ -432,6 +493,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 V = dr.clip(V, 0.0, 1.0)
             keep.append(V)
         return U, V
+
+    def exact_visibility(self, params) -> bool:
+        """The direct sum: ``visibility="exact"``, or ``auto`` without filter
+        properties for a directional light (point/spot lights keep the
+        filter under ``auto``: their kernel per texel and query makes the
+        direct sum many times the filter's cost)."""
+        if self.visibility_used != "exact":
+            return False
+        return self.visibility == "exact" or not is_local(params)
 
     def filtered(self, queries, smap, cover, w, clamp: bool):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
@@ -445,6 +515,20 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             V = series_visibility(smap, fb, queries, cover, opt, clamp)
             keep.append(V)
         return V
+
+    def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
+                             refs):
+        """Weighted average visibility with the weights of each query's mix
+        of its two nearest reference rays (:mod:`integrators.fourier_references`),
+        one filter per reference ray."""
+        def weighted_sum(k, rows):
+            w = L * row_kernel(params, queries, rays, sigma_t, refs.beta[k])
+            sub = smap if k < 2 else restrict_rows(smap, rows)
+            V_series = self.filtered(queries, sub, cover, w, self.clamp)
+            return shadowed_sum(smap, cover, w, V_series), cover.sum(w)
+
+        S, P = interpolated_sum(refs, weighted_sum)
+        return dr.select(P > 0.0, S / P, 1.0)
 
     def filtered_average(self, queries, smap, cover, w, clamp: bool):
         """Weighted average visibility with one filter of weights ``w``
@@ -529,7 +613,8 @@ def auto_texels(params, queries, cap) -> int:
     ``epipolar_tree``)."""
     cam = params.camera
     length = light_model(params).light_length(params, queries, cap)
-    d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)), length)
+    width, height = rectified_size(cam.width, cam.height)
+    d = auto_light_rays(width, height, float(np.max(params.medium.sigma_t)), length)
     return max(d, min(TEXEL_FACTOR * d, MAX_AUTO_TEXELS))
 
 
@@ -604,27 +689,11 @@ def row_shift(a, smap) -> mi.Float:
 
 def reference_kernel(params, queries, rays, sigma_t: float, how: str) -> mi.Float:
     """K(γ, β_ref) per light ray (n·d): the weights of the slice's reference
-    ray (§3.2, Eq. 11; the light side included).  Directional:
-    e^{-σt γ_g tan(β_ref/2)} at the light ray's start γ_g (equal light rays:
-    the factor of the interval's mean is common to the row).  Projective
-    texels: the integral of that kernel over the texel, Eq. 12
-    (:func:`~integrators.fourier_setup.texel_integral`).  Point/spot:
-    the mean over the light ray's interval of e^{-σt (t + r − L)} f_p(β_ref + γ)
-    (:func:`~integrators.epipolar_local_light.local_kernel`): the phase
-    function of the reference ray at each light ray is the "angular
-    dependency" of §3.2, next to the light's own (intensity, fall-off,
-    texture) in L."""
+    ray (§3.2, Eq. 11; the light side included), β_ref by
+    :func:`~integrators.fourier_setup.reference_angle`; the kernel itself is
+    :func:`~integrators.fourier_references.row_kernel`."""
     lo, hi = query_beta_range(queries)
-    tan_ref = dr.tan(0.5 * reference_angle(lo, hi, how))
-    s, gamma = rays.positions(0.0)
-    tan_ref = dr.gather(mi.Float, tan_ref, s)
-    if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
-        return texel_integral(gamma, rays.widths(), sigma_t * tan_ref)
-    if not is_local(params):
-        return dr.exp(-sigma_t * gamma * tan_ref)
-    return local_kernel(params, sigma_t, float(queries.frame.light_distance),
-                        query_x_max(queries), tan_ref, gamma,
-                        dr.gather(mi.Float, rays.delta_gamma, s))
+    return row_kernel(params, queries, rays, sigma_t, reference_angle(lo, hi, how))
 
 
 def near_visibility(queries, rays, beta_b) -> mi.Float:

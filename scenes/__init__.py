@@ -14,7 +14,8 @@ every scene follows (other code relies on them):
 - all other shapes are ``diffuse``: black in the plain scenes (only scattered
   light shows), coloured in the ``<name>_lit`` variants.
 
-``SUITE`` lists the plain scenes, ``LIT_SUITE`` their lit variants.  Large
+``SUITE`` lists the plain scenes, ``LIT_SUITE`` their lit variants,
+``STRESS_SUITE`` the scenes of :mod:`scenes.fourier_stress` (also with ``_lit``).  Large
 meshes and textures are generated, not committed: :func:`path` builds them on
 first use (``python -m scenes.generate`` rewrites everything).
 """
@@ -22,19 +23,23 @@ from __future__ import annotations
 
 from .assets import SCENE_DIR, ensure_assets
 from .catalog import SCENES
+from .fourier_stress import EMITTER_TYPE as STRESS_EMITTER_TYPE
+from .fourier_stress import SCENES as STRESS_SCENES
 
 #: the plain (black-surface) scenes, in suite order
 SUITE: list[str] = list(SCENES)
 #: the lit variants, ``<name>_lit``
 LIT_SUITE: list[str] = [f"{name}_lit" for name in SUITE]
+#: scenes that stress ``fourier_filter`` (issue 12, :mod:`scenes.fourier_stress`)
+STRESS_SUITE: list[str] = list(STRESS_SCENES)
 #: every scene file stem
-ALL_SCENES: list[str] = SUITE + LIT_SUITE
+ALL_SCENES: list[str] = SUITE + LIT_SUITE + STRESS_SUITE + [f"{n}_lit" for n in STRESS_SUITE]
 
 #: emitter plugin of each plain scene (the lit variant has the same)
 EMITTER_TYPE: dict[str, str] = {
     "nave_offscreen": "directional", "nave_onscreen": "directional",
     "grove": "directional", "terrain": "directional", "spot_room": "spot",
-    "point_fog": "point", "beam": "directional",
+    "point_fog": "point", "beam": "directional", **STRESS_EMITTER_TYPE,
 }
 
 
@@ -49,5 +54,5 @@ def path(name: str) -> str:
     return str(SCENE_DIR / f"{name}.xml")
 
 
-__all__ = ["SUITE", "LIT_SUITE", "ALL_SCENES", "EMITTER_TYPE", "SCENE_DIR",
+__all__ = ["SUITE", "LIT_SUITE", "STRESS_SUITE", "ALL_SCENES", "EMITTER_TYPE", "SCENE_DIR",
            "ensure_assets", "path"]

@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import assets, catalog
+from . import assets, catalog, fourier_stress
 from .meshes import write_atomic
 
 LIT_SUFFIX = "_lit"
@@ -21,7 +21,7 @@ LIT_SUFFIX = "_lit"
 def scene_texts() -> dict[str, str]:
     """``{file stem: XML text}`` for every scene and its ``_lit`` variant."""
     texts = {}
-    for name, build in catalog.SCENES.items():
+    for name, build in {**catalog.SCENES, **fourier_stress.SCENES}.items():
         texts[name] = build(lit=False).to_string()
         texts[name + LIT_SUFFIX] = build(lit=True).to_string()
     return texts

@@ -1,0 +1,269 @@
+"""``fourier_filter`` at its defaults on the suite and the stress scenes (issue 12).
+
+Three measurements, all against the exact working reference
+(``raymarch visibility=exact``, :func:`experiments.common.exact_reference`),
+**pixel centres** (1 spp, the reference at the same pixel centres), plain
+(black-surface) scenes, so the image is the single scattering alone:
+
+1. *accuracy*: every suite scene and every stress scene of
+   :mod:`scenes.fourier_stress` at the defaults (``default``) and with
+   Klehm's single reference ray per row (``paper``: ``reference_rays=1``,
+   what the defaults were before the change: the Fourier filter, M = 32):
+   scale-free relMSE, mean ratio,
+   largest pixel error over the reference peak, non-finite pixels, and the
+   light on reference-black pixels (reference below 1e-4 of its peak): the
+   largest as a fraction of the peak and how many exceed 1e-4 of it.
+   Error maps (|test − ref| / peak) of the stress scenes as PNGs.
+2. *thickness*: the sun room with σt swept so that σt · (medium-box
+   diagonal) runs from 0.01 to 10: the mean ratio of both.
+3. *cost* (``--time``): warm end-to-end time of both, median of
+   ``--repeats`` interleaved runs in one process, at ``--time-size``.
+
+Writes ``results/fourier_defaults/``: ``accuracy.csv``, ``thickness.csv``,
+``timing.csv``, ``fourier_defaults.json``, ``table.md`` and
+``errors_<scene>.png``.
+``python -m experiments.fourier_defaults [--quick] [--time] [--repeats N]``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+import scenes
+from episcatter import metrics
+
+from . import common as c
+
+NAME = "fourier_defaults"
+#: label -> fourier_filter properties
+MODES = {"default": {}, "paper": {"reference_rays": 1}}
+#: (the default: ``visibility="auto"`` = the exact sum; ``paper`` sets a
+#: filter property, so ``auto`` takes the Fourier filter)
+#: optical thicknesses σt · size of the sun-room sweep
+TAUS = (0.01, 0.1, 1.0, 3.0, 10.0)
+#: reference-black pixels: reference below this fraction of its peak
+BLACK = 1e-4
+
+
+def settings_for(quick: bool) -> dict:
+    if quick:
+        return {"width": 48, "height": 36, "taus": [0.1, 3.0], "reference_steps": 256,
+                "scenes": ["sun_room", "sun_behind"], "time_size": (64, 48)}
+    return {"width": 320, "height": 240, "taus": list(TAUS), "reference_steps": 1024,
+            "scenes": scenes.SUITE + scenes.STRESS_SUITE, "time_size": (640, 480)}
+
+
+def leak(img, ref) -> dict:
+    """Light on the reference-black pixels, relative to the reference peak."""
+    peak = float(np.max(ref))
+    black = np.mean(ref, axis=-1) < BLACK * peak
+    lum = np.mean(img, axis=-1)[black]
+    return {"black_pixels": int(black.sum()),
+            "leak_max": float(lum.max() / peak) if lum.size else 0.0,
+            "leak_pixels": int((lum > BLACK * peak).sum())}
+
+
+def measures(img, ref) -> dict:
+    img = np.asarray(img, np.float64)
+    peak = float(np.max(ref))
+    return {"relmse": metrics.scale_free_relmse(img, ref),
+            "mean_ratio": metrics.mean_ratio(img, ref),
+            "max_err_over_peak": float(np.max(np.abs(img - ref)) / peak) if peak > 0 else 0.0,
+            "nonfinite": int((~np.isfinite(img)).sum()), **leak(img, ref)}
+
+
+def render(scene, props):
+    return c.time_renders(scene, {"x": c.build("fourier_filter", props)}, repeats=1,
+                          warm_up=False)["x"]
+
+
+def error_map(path, name, images: dict, ref) -> None:
+    """|test − ref| / peak of each mode beside the reference."""
+    plt = c.pyplot()
+    peak = float(np.max(ref))
+    fig, axes = plt.subplots(1, len(images) + 1, figsize=(3.2 * (len(images) + 1), 2.6))
+    axes[0].imshow(np.clip(np.mean(ref, -1) / peak, 0, 1) ** 0.5, cmap="gray")
+    axes[0].set_title(f"{name}: reference (sqrt)", fontsize=8)
+    for ax, (label, img) in zip(axes[1:], images.items()):
+        err = np.mean(np.abs(np.asarray(img) - ref), -1) / peak
+        im = ax.imshow(err, cmap="magma", vmin=0.0, vmax=0.05)
+        ax.set_title(f"{label}: |err|/peak (max {err.max():.3g})", fontsize=8)
+    for ax in axes:
+        ax.set_axis_off()
+    fig.colorbar(im, ax=axes[1:], fraction=0.03)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def accuracy(s: dict, out, progress: bool) -> list[dict]:
+    rows = []
+    for name in s["scenes"]:
+        scene, ref, _ = c.scene_with_reference(name, s, progress)
+        images = {}
+        for label, props in MODES.items():
+            t = render(scene, props)
+            row = {"scene": name, "mode": label, "params": props, "width": s["width"],
+                   "height": s["height"], "status": t.get("error", "ok")}
+            if "error" not in t:
+                images[label] = t["image"]
+                row.update(measures(t["image"], ref))
+            rows.append(row)
+            print(name, label, {k: c.fmt(v) for k, v in row.items() if k not in ("params",)},
+                  flush=True)
+        if name in scenes.STRESS_SUITE and images:
+            error_map(out / f"errors_{name}.png", name, images, ref)
+    return rows
+
+
+def thickness(s: dict, progress: bool) -> list[dict]:
+    from integrators.scene_params import SceneParams
+
+    path = c.scene_file("sun_room")
+    size = SceneParams.from_scene(c.load(path, c.resolution(s["width"], s["height"]))
+                                  ).scene_extent
+    rows = []
+    for tau in s["taus"]:
+        sigma_t = tau / size
+        scene, ref, _ = c.scene_with_reference("sun_room", s, progress,
+                                               sigma_t=f"{sigma_t:.9g}")
+        for label, props in MODES.items():
+            t = render(scene, props)
+            row = {"scene": "sun_room", "tau": tau, "sigma_t": sigma_t, "size_m": size,
+                   "mode": label, **(measures(t["image"], ref) if "error" not in t else
+                                     {"status": t["error"]})}
+            rows.append(row)
+            print("tau", tau, label, c.fmt(row.get("mean_ratio")), flush=True)
+    return rows
+
+
+def timing(s: dict, repeats: int, progress: bool) -> list[dict]:
+    w, h = s["time_size"]
+    rows = []
+    for name in [n for n in s["scenes"] if n in scenes.SUITE] or s["scenes"]:
+        scene = c.load(c.scene_file(name), c.resolution(w, h))
+        loads = [c.load_average()]
+        timed = c.time_renders(scene, {m: c.build("fourier_filter", p) for m, p in MODES.items()},
+                               repeats=repeats, progress=progress)
+        loads.append(c.load_average())
+        for label in MODES:
+            t = timed[label]
+            rows.append({"scene": name, "mode": label, "width": w, "height": h,
+                         "time_s": t.get("time_s"), "first_run_s": t.get("first_run_s"),
+                         "scattering_s": t.get("scattering_s"), "stages": t.get("stages"),
+                         "load": loads})
+        print(name, {m: c.fmt(timed[m].get("time_s")) for m in MODES}, loads, flush=True)
+    return rows
+
+
+def random_stress(n: int, steps: int) -> list[dict]:
+    """The randomised scenes of :mod:`experiments.random_scenes` (seeds
+    0..n-1, their own small sizes) at the defaults against the exact
+    marcher: relMSE, mean ratio, non-finite pixels; leaks against the
+    unoccluded peak (the scene without its occluders)."""
+    import mitsuba as mi
+
+    from .random_scenes import scene_set
+
+    rows = []
+    for spec in scene_set(n):
+        row = {"seed": spec.seed, "kind": spec.kind, "light": spec.light["type"],
+               "res": f"{spec.res[0]}x{spec.res[1]}", "sigma_t_B": spec.sigma_t * spec.box_half}
+        try:
+            scene = spec.load()
+            ref = np.asarray(mi.render(scene, integrator=c.build(
+                "raymarch", {"visibility": "exact", "steps": steps, "output": "scattering"})))
+            img = np.asarray(mi.render(scene, integrator=c.build(
+                "fourier_filter", {"output": "scattering"})))
+            free = np.asarray(mi.render(spec.load(occluders=False), integrator=c.build(
+                "raymarch", {"visibility": "exact", "steps": steps, "output": "scattering"})))
+            peak = float(np.max(free))
+            row.update(measures(img, ref) if np.max(ref) > 0 else
+                       {"nonfinite": int((~np.isfinite(img)).sum())})
+            row["max_over_unoccluded_peak"] = (float(np.max(np.abs(img - ref))) / peak
+                                               if peak > 0 else 0.0)
+            row["status"] = "ok"
+        except Exception as exc:  # noqa: BLE001 -- recorded
+            row["status"] = c.describe_error(exc)
+        rows.append(row)
+        print(spec.name, {k: c.fmt(v) for k, v in row.items()}, flush=True)
+    return rows
+
+
+def report(acc, thick, times, s, repeats) -> str:
+    parts = [f"# fourier_filter at its defaults ({s['width']}x{s['height']}, pixel centres)",
+             "Against raymarch visibility=exact "
+             f"({s['reference_steps']} steps), 1 spp at pixel centres, plain scenes "
+             "(scattering only). relMSE: scale-free (eps = 1e-2 · mean(ref)²). "
+             f"Leak: light on reference-black pixels (ref < {BLACK:g} · peak) over the peak; "
+             f"leak px: how many exceed {BLACK:g} · peak. `paper`: reference_rays=1 "
+             "(Klehm's single reference ray, the previous default)."]
+    header = ["scene", "mode", "relMSE", "mean ratio", "max err/peak", "leak max", "leak px",
+              "black px", "non-finite"]
+    body = [[r["scene"], r["mode"], c.fmt(r.get("relmse")), c.fmt(r.get("mean_ratio"), 4),
+             c.fmt(r.get("max_err_over_peak")), c.fmt(r.get("leak_max")), r.get("leak_pixels"),
+             r.get("black_pixels"), r.get("nonfinite")] for r in acc]
+    if acc:
+        parts += ["## Accuracy", c.markdown_table(header, body)]
+    if thick:
+        taus = sorted({r["tau"] for r in thick})
+        body = [[c.fmt(t)] + [c.fmt(next(r.get("mean_ratio") for r in thick
+                                         if r["tau"] == t and r["mode"] == m), 4)
+                              for m in MODES] for t in taus]
+        parts += ["## Mean ratio against optical thickness (sun_room, σt · box diagonal)",
+                  c.markdown_table(["τ"] + list(MODES), body)]
+    if times:
+        names = list(dict.fromkeys(r["scene"] for r in times))
+        body = []
+        for n in names:
+            by = {r["mode"]: r for r in times if r["scene"] == n}
+            d, p = by["default"]["time_s"], by["paper"]["time_s"]
+            body.append([n, c.fmt(1000 * p), c.fmt(1000 * d), c.fmt(d / p), str(by["default"]["load"])])
+        w, h = s["time_size"]
+        parts += [f"## Cost ({w}x{h}, warm end-to-end, median of {repeats}, one process)",
+                  c.markdown_table(["scene", "paper [ms]", "default [ms]", "ratio",
+                                    "load (before, after)"], body)]
+    return "\n\n".join(parts)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--time", action="store_true", help="also time the suite")
+    p.add_argument("--time-only", action="store_true", help="only time the suite")
+    p.add_argument("--random", type=int, default=0,
+                   help="only the randomised stress set: this many seeds")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--scenes", nargs="+", default=None)
+    p.add_argument("--out", default=None)
+    args = p.parse_args(argv)
+    s = settings_for(args.quick)
+    if args.scenes:
+        s["scenes"] = args.scenes
+    out = c.output_dir(NAME, args.out, args.quick)
+    if args.random:
+        rows = random_stress(args.random, s["reference_steps"])
+        c.write_csv(out / "random.csv", rows)
+        c.write_json(out / "random.json", {"name": NAME, "seeds": args.random,
+                                           "reference_steps": s["reference_steps"]}, rows)
+        return 0
+    acc = [] if args.time_only else accuracy(s, out, progress=False)
+    thick = [] if args.time_only else thickness(s, progress=False)
+    times = timing(s, args.repeats, progress=False) if args.time or args.time_only else []
+    text = report(acc, thick, times, s, args.repeats)
+    print(text)
+    if acc:
+        c.write_csv(out / "accuracy.csv", acc)
+        c.write_csv(out / "thickness.csv", thick)
+    if times:
+        c.write_csv(out / "timing.csv", times)
+    c.write_json(out / "fourier_defaults.json", {"name": NAME, **s, "repeats": args.repeats,
+                                                 "modes": MODES, "black": BLACK},
+                 acc, thickness=thick, timing=times)
+    c.write_text(out / "table.md", text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
