@@ -538,10 +538,12 @@ def main(argv=None):
                    help="run the randomised set of N generated scenes instead of the fixed cases")
     p.add_argument("--first-seed", type=int, default=0, help="first seed of --random")
     p.add_argument("--tag", default="random", help="file stem of --random's outputs")
+    p.add_argument("--methods", nargs="+", default=list(RANDOM_METHODS),
+                   help="integrators of --random (default: all three)")
     args = p.parse_args(argv)
     if args.random:
         out = c.output_dir(NAME, args.out, args.quick)
-        return run_random(args.random, args.first_seed, out,
+        return run_random(args.random, args.first_seed, out, tuple(args.methods),
                           steps=256 if args.quick else c.REFERENCE_STEPS, tag=args.tag)
     s = settings_for(args.quick)
     if args.quick:
