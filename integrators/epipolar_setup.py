@@ -231,10 +231,17 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     first = f < 1.0                      # k0 takes a share
     second = f > 0.0                     # k1 takes a share
     i0, i1 = dr.compress(first), dr.compress(second)
-    sample = dr.concat([dr.gather(mi.UInt32, idx, i0), dr.gather(mi.UInt32, idx, i1)])
-    k = dr.concat([dr.gather(mi.UInt32, k0, i0), dr.gather(mi.UInt32, k1, i1)])
-    weight = dr.concat([1.0 - dr.gather(mi.Float, f, i0), dr.gather(mi.Float, f, i1)])
+    sample = _concat([dr.gather(mi.UInt32, idx, i0), dr.gather(mi.UInt32, idx, i1)])
+    k = _concat([dr.gather(mi.UInt32, k0, i0), dr.gather(mi.UInt32, k1, i1)])
+    weight = _concat([dr.gather(mi.Float, 1.0 - f, i0), dr.gather(mi.Float, f, i1)])
     return sample, k, weight
+
+
+def _concat(parts):
+    """``dr.concat`` of the non-empty ``parts`` (it refuses empty arrays,
+    e.g. when no sample of a 1-pixel image falls between two slices)."""
+    parts = [p for p in parts if dr.width(p)]
+    return parts[0] if len(parts) == 1 else dr.concat(parts)
 
 
 #: fewest bits of β in the one-key sort of :func:`_sweep_order`
