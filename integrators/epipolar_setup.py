@@ -128,13 +128,21 @@ def epipolar_frame_of(params) -> EpipolarFrame:
     return point_frame(params.camera, light.position, kind=light.kind)
 
 
+#: automatic slices: an image narrower than this many pixels is sliced as if
+#: it were this wide (a pixel's half-width is then a wide angle, and a sample
+#: that far from its slice sees other blockers)
+MIN_SLICE_PIXELS = 64
+
+
 def choose_slices(frame: EpipolarFrame, count: int = 0, spacing: float = 1.0) -> Slices:
     """``count = 0``: Baran's sinh distribution (§8), lines at most
-    ``spacing`` px apart (1: every pixel within half a pixel of a slice);
+    ``spacing`` px apart (1: every pixel within half a pixel of a slice),
+    the spacing scaled down on images narrower than ``MIN_SLICE_PIXELS``;
     otherwise about ``count`` slices with end points equally spaced along the
     image edges the slices leave through."""
     if count <= 0:
-        return make_slices(frame, "sinh", spacing=spacing)
+        size = max(frame.width, frame.height)
+        return make_slices(frame, "sinh", spacing=spacing * min(1.0, size / MIN_SLICE_PIXELS))
     border = make_slices(frame, "uniform", spacing=1.0).count   # ≈ exit-edge length [px]
     return make_slices(frame, "uniform", spacing=max(border, 1) / count)
 
