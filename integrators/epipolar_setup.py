@@ -131,7 +131,7 @@ def epipolar_frame_of(params) -> EpipolarFrame:
 #: automatic slices: an image narrower than this many pixels is sliced as if
 #: it were this wide (a pixel's half-width is then a wide angle, and a sample
 #: that far from its slice sees other blockers)
-MIN_SLICE_PIXELS = 64
+MIN_SLICE_PIXELS = 256
 
 
 def choose_slices(frame: EpipolarFrame, count: int = 0, spacing: float = 1.0) -> Slices:
@@ -157,13 +157,21 @@ def in_ring(beta, ring_deg: float) -> mi.Bool:
 MAX_AUTO_LIGHT_RAYS = 4096
 
 
+#: fewest light rays per slice the automatic choice takes: a 1-sample pixel
+#: samples the blockers along one view ray however small the image is, so
+#: the light rays must resolve them at any image size
+MIN_AUTO_LIGHT_RAYS = 256
+
+
 def auto_light_rays(width: int, height: int, sigma_t: float = 0.0,
                     gamma_max: float = 0.0) -> int:
-    """Default ``d``: the image diagonal in pixels (at least 32), or more if
-    four light rays per mean free path 1/σt over the widest row's
-    ``γ_max`` need more (thick media: the scattering then comes from a few
-    light rays next to the eye), at most ``MAX_AUTO_LIGHT_RAYS``."""
-    d = max(32, math.ceil(math.hypot(width, height)), math.ceil(4 * sigma_t * gamma_max))
+    """Default ``d``: the image diagonal in pixels (at least
+    ``MIN_AUTO_LIGHT_RAYS``), or more if four light rays per mean free path
+    1/σt over the widest row's ``γ_max`` need more (thick media: the
+    scattering then comes from a few light rays next to the eye), at most
+    ``MAX_AUTO_LIGHT_RAYS``."""
+    d = max(MIN_AUTO_LIGHT_RAYS, math.ceil(math.hypot(width, height)),
+            math.ceil(4 * sigma_t * gamma_max))
     return int(min(d, MAX_AUTO_LIGHT_RAYS))
 
 
