@@ -41,6 +41,7 @@ Writes ``results/stability/``: ``stability.csv``, ``stability.json``,
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -532,6 +533,77 @@ def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
     return rows
 
 
+
+LOG_LINE = re.compile(r"^\[\d+/\d+\] seed (\d+) \((\w+), (\w+), (\d+x\d+)\): (.*)$")
+LOG_METHOD = re.compile(r"(\w+) (ok|UNBOUNDED) relMSE (\S+) max/peak (\S+) mean (\S+) leak (\S+)")
+
+
+def parse_log(path) -> list[dict]:
+    """Rows of a ``--random`` run's progress log (one line per scene; the
+    CSV is written only at the end, so an interrupted run keeps its log):
+    seed, kind, light, res, method, bounded, relmse, max_rel_to_peak,
+    mean_ratio, leak (3 significant digits; NaN where the log has "-"),
+    ref_class ``black`` where a leak is given, ``failed`` where nothing is."""
+    def num(x):
+        return math.nan if x == "-" else float(x)
+
+    rows = []
+    for line in open(path):
+        m = LOG_LINE.match(line.strip())
+        if not m:
+            continue
+        seed, kind, light, res, rest = m.groups()
+        for part in rest.split("; "):
+            k = LOG_METHOD.match(part)
+            if not k:
+                continue
+            method, ok, relmse, peak, mean, leak = k.groups()
+            values = [num(v) for v in (relmse, peak, mean, leak)]
+            cls = ("black" if values[3] == values[3] else
+                   "failed" if all(v != v for v in values) else "lit")
+            if cls == "lit" and ok == "ok" and not (
+                    values[0] <= BOUND and values[1] <= PEAK_BOUND
+                    and abs(values[2] - 1.0) <= MEAN_BOUND):
+                cls = "invisible"        # judged ok only because its peak is < INVISIBLE_PEAK
+            rows.append({"seed": int(seed), "kind": kind, "light": light, "res": res,
+                         "method": method, "bounded": ok == "ok", "relmse": values[0],
+                         "max_rel_to_peak": values[1], "mean_ratio": values[2],
+                         "leak": values[3], "ref_class": cls,
+                         "status": "failed" if cls == "failed" else "ok"})
+    return rows
+
+
+def compare_logs(before: list, after: list, out, method: str = "epipolar_tree") -> dict:
+    """Before/after summaries (:func:`random_summary`) of ``method`` on the
+    seeds both sets of logs cover; writes ``random_before.csv``,
+    ``random_after.csv``, ``random_compare.json`` and ``random_compare.md``."""
+    def rows_of(paths):
+        rows = {}
+        for path in paths:
+            for r in parse_log(path):
+                if r["method"] == method:
+                    rows.setdefault(r["seed"], r)
+        return rows
+    b, a = rows_of(before), rows_of(after)
+    seeds = sorted(set(b) & set(a))
+    rb, ra = [b[k] for k in seeds], [a[k] for k in seeds]
+    summary = {"seeds": seeds, "before": random_summary(rb, (method,))[method],
+               "after": random_summary(ra, (method,))[method]}
+    c.write_csv(out / "random_before.csv", rb)
+    c.write_csv(out / "random_after.csv", ra)
+    c.write_json(out / "random_compare.json", {"name": NAME, "method": method,
+                                               "before_logs": [str(p) for p in before],
+                                               "after_logs": [str(p) for p in after]},
+                 [], summary=summary)
+    text = random_text({f"{method} before": summary["before"],
+                        f"{method} after": summary["after"]},
+                       len(seeds), seeds[0] if seeds else 0, c.REFERENCE_STEPS)
+    text += f"\n\nSeeds compared ({len(seeds)}): {seeds}\n"
+    c.write_text(out / "random_compare.md", text)
+    print(text)
+    return summary
+
+
 def main(argv=None):
     p = c.base_parser(__doc__, [], [])
     p.add_argument("--random", type=int, default=0, metavar="N",
@@ -540,7 +612,12 @@ def main(argv=None):
     p.add_argument("--tag", default="random", help="file stem of --random's outputs")
     p.add_argument("--methods", nargs="+", default=list(RANDOM_METHODS),
                    help="integrators of --random (default: all three)")
+    p.add_argument("--compare-logs", nargs=2, metavar=("BEFORE", "AFTER"), default=None,
+                   help="comma-separated progress logs of two --random runs: before/after table")
     args = p.parse_args(argv)
+    if args.compare_logs:
+        return compare_logs(*(x.split(",") for x in args.compare_logs),
+                            c.output_dir(NAME, args.out, args.quick))
     if args.random:
         out = c.output_dir(NAME, args.out, args.quick)
         return run_random(args.random, args.first_seed, out, tuple(args.methods),
