@@ -41,6 +41,7 @@ Writes ``results/stability/``: ``stability.csv``, ``stability.json``,
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -372,9 +373,265 @@ def case_order(rows: list[dict], cases: list[dict]) -> list[dict]:
     return sorted(rows, key=lambda r: pos.get((r["group"], r["case"]), len(pos)))
 
 
+
+# --------------------------------------------------------------------------
+# Randomised stress set (issue 13): experiments.random_scenes
+# --------------------------------------------------------------------------
+
+#: integrators of the randomised set, each at its defaults
+RANDOM_METHODS = ("raymarch", "epipolar_tree", "fourier_filter")
+#: mean ratio must lie within this of 1 on lit references ...
+MEAN_BOUND = 0.02
+#: ... and a black reference may receive at most this fraction of the unoccluded peak
+LEAK_BOUND = 1e-3
+#: references whose peak is below this (but not 0) are invisible at any exposure: not judged
+INVISIBLE_PEAK = 1e-12
+
+
+def reference_class(peak: float) -> str:
+    """``black`` (peak 0: judged by the leak), ``invisible`` (0 < peak <
+    ``INVISIBLE_PEAK``: not judged) or ``lit``."""
+    if peak == 0.0:
+        return "black"
+    return "invisible" if peak < INVISIBLE_PEAK else "lit"
+
+
+def random_stats(img, ref, unoccluded_peak: float) -> dict:
+    """Per image against the reference at pixel centres (scattering only):
+    NaN/Inf count, scale-free relMSE, mean ratio, max |error| / reference
+    peak, leak (largest value / unoccluded peak) and whether the issue-13
+    bounds hold for the reference's class (:func:`reference_class`)."""
+    from episcatter import metrics
+
+    finite = np.all(np.isfinite(img), axis=-1)
+    nonfinite = int((~finite).sum())
+    img = np.where(finite[..., None], img, 0.0)
+    peak = float(np.max(ref))
+    cls = reference_class(peak)
+    out = {"nonfinite": nonfinite, "ref_class": cls, "ref_peak": peak,
+           "unoccluded_peak": unoccluded_peak, "relmse": math.nan, "mean_ratio": math.nan,
+           "max_rel_to_peak": math.nan, "leak": math.nan}
+    if cls == "black":
+        leak = float(np.max(np.abs(img))) / unoccluded_peak if unoccluded_peak > 0 else 0.0
+        out.update(leak=leak, bounded=bool(nonfinite == 0 and leak <= LEAK_BOUND))
+        return out
+    out.update(relmse=metrics.scale_free_relmse(img, ref), mean_ratio=metrics.mean_ratio(img, ref),
+               max_rel_to_peak=float(np.max(np.abs(img - ref))) / peak)
+    out["bounded"] = bool(cls == "invisible" or (
+        nonfinite == 0 and out["relmse"] <= BOUND and out["max_rel_to_peak"] <= PEAK_BOUND
+        and abs(out["mean_ratio"] - 1.0) <= MEAN_BOUND))
+    return out
+
+
+def run_random_scene(spec, methods=RANDOM_METHODS, reference_steps: int = c.REFERENCE_STEPS,
+                     params: dict | None = None) -> list[dict]:
+    """The exact reference and each of ``methods`` (at its defaults, plus
+    ``params`` if given) on one generated scene, scattering only, one row per
+    method; the unoccluded reference's peak only where the reference is black."""
+    scene = spec.load()
+    exact = {"visibility": "exact", "steps": reference_steps, "output": "scattering"}
+    ref, status = render(scene, "raymarch", exact)
+    base = {"seed": spec.seed, "kind": spec.kind, "light": spec.light["type"],
+            "res": f"{spec.res[0]}x{spec.res[1]}", "sigma_t_B": spec.sigma_t * spec.box_half,
+            "occluders": len(spec.occluders)}
+    if ref is None:
+        return [{**base, "method": "reference", "status": status}]
+    unoccluded = math.nan
+    if reference_class(float(np.max(ref))) == "black":
+        free, _ = render(spec.load(occluders=False), "raymarch", exact)
+        unoccluded = float(np.max(free)) if free is not None else math.nan
+    rows = []
+    for kind in methods:
+        img, status = render(scene, kind, {"output": "scattering", **(params or {})})
+        row = {**base, "method": kind, "status": status}
+        if img is not None:
+            row.update(random_stats(img, ref, unoccluded))
+        else:
+            row["bounded"] = False
+        rows.append(row)
+    return rows
+
+
+def distribution(values) -> dict:
+    """median, 90th percentile and max of the finite ``values`` (NaN if none)."""
+    v = np.asarray([x for x in values if x is not None and x == x], float)
+    if not v.size:
+        return {"median": math.nan, "p90": math.nan, "max": math.nan, "n": 0}
+    return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)),
+            "max": float(np.max(v)), "n": int(v.size)}
+
+
+def random_summary(rows: list[dict], methods=RANDOM_METHODS) -> dict:
+    """Per method: scenes, bounded count, failures by kind, and the
+    distributions of relMSE, max error / peak, |mean ratio - 1| (lit
+    references) and leak (black references)."""
+    out = {}
+    for kind in methods:
+        mine = [r for r in rows if r["method"] == kind]
+        lit = [r for r in mine if r.get("ref_class") == "lit"]
+        black = [r for r in mine if r.get("ref_class") == "black"]
+        failed = [r for r in mine if not r.get("bounded")]
+        out[kind] = {
+            "scenes": len(mine), "lit": len(lit), "black": len(black),
+            "invisible": sum(r.get("ref_class") == "invisible" for r in mine),
+            "not_rendered": sum(r["status"] != "ok" for r in mine),
+            "nonfinite_scenes": sum(bool(r.get("nonfinite")) for r in mine),
+            "bounded": len(mine) - len(failed),
+            "unbounded_seeds": [r["seed"] for r in failed],
+            "unbounded_by_kind": {k: sum(r["kind"] == k for r in failed)
+                                  for k in sorted({r["kind"] for r in failed})},
+            "relmse": distribution(r["relmse"] for r in lit),
+            "max_rel_to_peak": distribution(r["max_rel_to_peak"] for r in lit),
+            "mean_ratio_dev": distribution(abs(r["mean_ratio"] - 1.0) for r in lit),
+            "leak": distribution(r["leak"] for r in black),
+        }
+    return out
+
+
+def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
+    header = ["method", "scenes (lit/black/invisible)", "bounded", "relMSE median / p90 / max",
+              "max err/peak median / p90 / max", "|mean ratio-1| p90 / max", "leak max",
+              "unbounded by kind"]
+    body = []
+    for kind, s in summary.items():
+        d = s["relmse"], s["max_rel_to_peak"], s["mean_ratio_dev"]
+        body.append([kind, f"{s['scenes']} ({s['lit']}/{s['black']}/{s['invisible']})",
+                     f"{s['bounded']}/{s['scenes']}",
+                     " / ".join(c.fmt(d[0][k]) for k in ("median", "p90", "max")),
+                     " / ".join(c.fmt(d[1][k]) for k in ("median", "p90", "max")),
+                     " / ".join(c.fmt(d[2][k]) for k in ("p90", "max")),
+                     c.fmt(s["leak"]["max"]),
+                     ", ".join(f"{k} {v}" for k, v in s["unbounded_by_kind"].items()) or "-"])
+    return "\n\n".join([
+        f"# stability, randomised set (seeds {first_seed}..{first_seed + n - 1})",
+        "Scenes of experiments.random_scenes; each integrator at its defaults, output "
+        f"scattering, 1 spp at pixel centres against raymarch visibility=exact steps={steps}. "
+        f"Scale-free relMSE (eps 1e-2 x mean(ref)^2). Bounded: lit reference -> no NaN/Inf, "
+        f"relMSE <= {BOUND:g}, max |error| <= {PEAK_BOUND:g} x peak, |mean ratio - 1| <= "
+        f"{MEAN_BOUND:g}; black reference -> largest value <= {LEAK_BOUND:g} x the unoccluded "
+        f"reference's peak; references with 0 < peak < {INVISIBLE_PEAK:g} are not judged.",
+        c.markdown_table(header, body)])
+
+
+def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
+               steps: int = c.REFERENCE_STEPS, tag: str = "random") -> list[dict]:
+    """The randomised set: ``n`` scenes from ``first_seed``; writes
+    ``<tag>.csv``, ``<tag>.json`` (settings, rows, summary) and ``<tag>.md``."""
+    from . import random_scenes
+
+    rows = []
+    specs = random_scenes.scene_set(n, first_seed)
+    for i, spec in enumerate(specs):
+        new = run_random_scene(spec, methods, steps)
+        rows += new
+        print(f"[{i + 1}/{n}] {spec.name}: " + "; ".join(
+            f"{r['method']} {'ok' if r.get('bounded') else 'UNBOUNDED'} "
+            f"relMSE {c.fmt(r.get('relmse'))} max/peak {c.fmt(r.get('max_rel_to_peak'))} "
+            f"mean {c.fmt(r.get('mean_ratio'), 4)} leak {c.fmt(r.get('leak'))}"
+            for r in new), flush=True)
+    summary = random_summary(rows, methods)
+    settings = {"name": NAME, "set": tag, "scenes": n, "first_seed": first_seed,
+                "methods": list(methods), "reference_steps": steps, "bound_relmse": BOUND,
+                "bound_peak": PEAK_BOUND, "bound_mean": MEAN_BOUND, "bound_leak": LEAK_BOUND,
+                "invisible_peak": INVISIBLE_PEAK, "output": "scattering",
+                "specs": [s.as_json() for s in specs]}
+    c.write_csv(out / f"{tag}.csv", rows)
+    c.write_json(out / f"{tag}.json", settings, rows, summary=summary)
+    text = random_text(summary, n, first_seed, steps)
+    c.write_text(out / f"{tag}.md", text)
+    print(text)
+    return rows
+
+
+
+LOG_LINE = re.compile(r"^\[\d+/\d+\] seed (\d+) \((\w+), (\w+), (\d+x\d+)\): (.*)$")
+LOG_METHOD = re.compile(r"(\w+) (ok|UNBOUNDED) relMSE (\S+) max/peak (\S+) mean (\S+) leak (\S+)")
+
+
+def parse_log(path) -> list[dict]:
+    """Rows of a ``--random`` run's progress log (one line per scene; the
+    CSV is written only at the end, so an interrupted run keeps its log):
+    seed, kind, light, res, method, bounded, relmse, max_rel_to_peak,
+    mean_ratio, leak (3 significant digits; NaN where the log has "-"),
+    ref_class ``black`` where a leak is given, ``failed`` where nothing is."""
+    def num(x):
+        return math.nan if x == "-" else float(x)
+
+    rows = []
+    for line in open(path):
+        m = LOG_LINE.match(line.strip())
+        if not m:
+            continue
+        seed, kind, light, res, rest = m.groups()
+        for part in rest.split("; "):
+            k = LOG_METHOD.match(part)
+            if not k:
+                continue
+            method, ok, relmse, peak, mean, leak = k.groups()
+            values = [num(v) for v in (relmse, peak, mean, leak)]
+            cls = ("black" if values[3] == values[3] else
+                   "failed" if all(v != v for v in values) else "lit")
+            if cls == "lit" and ok == "ok" and not (
+                    values[0] <= BOUND and values[1] <= PEAK_BOUND
+                    and abs(values[2] - 1.0) <= MEAN_BOUND):
+                cls = "invisible"        # judged ok only because its peak is < INVISIBLE_PEAK
+            rows.append({"seed": int(seed), "kind": kind, "light": light, "res": res,
+                         "method": method, "bounded": ok == "ok", "relmse": values[0],
+                         "max_rel_to_peak": values[1], "mean_ratio": values[2],
+                         "leak": values[3], "ref_class": cls,
+                         "status": "failed" if cls == "failed" else "ok"})
+    return rows
+
+
+def compare_logs(before: list, after: list, out, method: str = "epipolar_tree") -> dict:
+    """Before/after summaries (:func:`random_summary`) of ``method`` on the
+    seeds both sets of logs cover; writes ``random_before.csv``,
+    ``random_after.csv``, ``random_compare.json`` and ``random_compare.md``."""
+    def rows_of(paths):
+        rows = {}
+        for path in paths:
+            for r in parse_log(path):
+                if r["method"] == method:
+                    rows.setdefault(r["seed"], r)
+        return rows
+    b, a = rows_of(before), rows_of(after)
+    seeds = sorted(set(b) & set(a))
+    rb, ra = [b[k] for k in seeds], [a[k] for k in seeds]
+    summary = {"seeds": seeds, "before": random_summary(rb, (method,))[method],
+               "after": random_summary(ra, (method,))[method]}
+    c.write_csv(out / "random_before.csv", rb)
+    c.write_csv(out / "random_after.csv", ra)
+    c.write_json(out / "random_compare.json", {"name": NAME, "method": method,
+                                               "before_logs": [str(p) for p in before],
+                                               "after_logs": [str(p) for p in after]},
+                 [], summary=summary)
+    text = random_text({f"{method} before": summary["before"],
+                        f"{method} after": summary["after"]},
+                       len(seeds), seeds[0] if seeds else 0, c.REFERENCE_STEPS)
+    text += f"\n\nSeeds compared ({len(seeds)}): {seeds}\n"
+    c.write_text(out / "random_compare.md", text)
+    print(text)
+    return summary
+
+
 def main(argv=None):
     p = c.base_parser(__doc__, [], [])
+    p.add_argument("--random", type=int, default=0, metavar="N",
+                   help="run the randomised set of N generated scenes instead of the fixed cases")
+    p.add_argument("--first-seed", type=int, default=0, help="first seed of --random")
+    p.add_argument("--tag", default="random", help="file stem of --random's outputs")
+    p.add_argument("--methods", nargs="+", default=list(RANDOM_METHODS),
+                   help="integrators of --random (default: all three)")
+    p.add_argument("--compare-logs", nargs=2, metavar=("BEFORE", "AFTER"), default=None,
+                   help="comma-separated progress logs of two --random runs: before/after table")
     args = p.parse_args(argv)
+    if args.compare_logs:
+        return compare_logs(*(x.split(",") for x in args.compare_logs),
+                            c.output_dir(NAME, args.out, args.quick))
+    if args.random:
+        out = c.output_dir(NAME, args.out, args.quick)
+        return run_random(args.random, args.first_seed, out, tuple(args.methods),
+                          steps=256 if args.quick else c.REFERENCE_STEPS, tag=args.tag)
     s = settings_for(args.quick)
     if args.quick:
         s["quick_subset"] = True

@@ -128,13 +128,21 @@ def epipolar_frame_of(params) -> EpipolarFrame:
     return point_frame(params.camera, light.position, kind=light.kind)
 
 
+#: automatic slices: an image narrower than this many pixels is sliced as if
+#: it were this wide (a pixel's half-width is then a wide angle, and a sample
+#: that far from its slice sees other blockers)
+MIN_SLICE_PIXELS = 256
+
+
 def choose_slices(frame: EpipolarFrame, count: int = 0, spacing: float = 1.0) -> Slices:
     """``count = 0``: Baran's sinh distribution (§8), lines at most
-    ``spacing`` px apart (1: every pixel within half a pixel of a slice);
+    ``spacing`` px apart (1: every pixel within half a pixel of a slice),
+    the spacing scaled down on images narrower than ``MIN_SLICE_PIXELS``;
     otherwise about ``count`` slices with end points equally spaced along the
     image edges the slices leave through."""
     if count <= 0:
-        return make_slices(frame, "sinh", spacing=spacing)
+        size = max(frame.width, frame.height)
+        return make_slices(frame, "sinh", spacing=spacing * min(1.0, size / MIN_SLICE_PIXELS))
     border = make_slices(frame, "uniform", spacing=1.0).count   # ≈ exit-edge length [px]
     return make_slices(frame, "uniform", spacing=max(border, 1) / count)
 
@@ -149,13 +157,21 @@ def in_ring(beta, ring_deg: float) -> mi.Bool:
 MAX_AUTO_LIGHT_RAYS = 4096
 
 
+#: fewest light rays per slice the automatic choice takes: a 1-sample pixel
+#: samples the blockers along one view ray however small the image is, so
+#: the light rays must resolve them at any image size
+MIN_AUTO_LIGHT_RAYS = 256
+
+
 def auto_light_rays(width: int, height: int, sigma_t: float = 0.0,
                     gamma_max: float = 0.0) -> int:
-    """Default ``d``: the image diagonal in pixels (at least 32), or more if
-    four light rays per mean free path 1/σt over the widest row's
-    ``γ_max`` need more (thick media: the scattering then comes from a few
-    light rays next to the eye), at most ``MAX_AUTO_LIGHT_RAYS``."""
-    d = max(32, math.ceil(math.hypot(width, height)), math.ceil(4 * sigma_t * gamma_max))
+    """Default ``d``: the image diagonal in pixels (at least
+    ``MIN_AUTO_LIGHT_RAYS``), or more if four light rays per mean free path
+    1/σt over the widest row's ``γ_max`` need more (thick media: the
+    scattering then comes from a few light rays next to the eye), at most
+    ``MAX_AUTO_LIGHT_RAYS``."""
+    d = max(MIN_AUTO_LIGHT_RAYS, math.ceil(math.hypot(width, height)),
+            math.ceil(4 * sigma_t * gamma_max))
     return int(min(d, MAX_AUTO_LIGHT_RAYS))
 
 
@@ -231,10 +247,17 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     first = f < 1.0                      # k0 takes a share
     second = f > 0.0                     # k1 takes a share
     i0, i1 = dr.compress(first), dr.compress(second)
-    sample = dr.concat([dr.gather(mi.UInt32, idx, i0), dr.gather(mi.UInt32, idx, i1)])
-    k = dr.concat([dr.gather(mi.UInt32, k0, i0), dr.gather(mi.UInt32, k1, i1)])
-    weight = dr.concat([1.0 - dr.gather(mi.Float, f, i0), dr.gather(mi.Float, f, i1)])
+    sample = _concat([dr.gather(mi.UInt32, idx, i0), dr.gather(mi.UInt32, idx, i1)])
+    k = _concat([dr.gather(mi.UInt32, k0, i0), dr.gather(mi.UInt32, k1, i1)])
+    weight = _concat([dr.gather(mi.Float, 1.0 - f, i0), dr.gather(mi.Float, f, i1)])
     return sample, k, weight
+
+
+def _concat(parts):
+    """``dr.concat`` of the non-empty ``parts`` (it refuses empty arrays,
+    e.g. when no sample of a 1-pixel image falls between two slices)."""
+    parts = [p for p in parts if dr.width(p)]
+    return parts[0] if len(parts) == 1 else dr.concat(parts)
 
 
 #: fewest bits of β in the one-key sort of :func:`_sweep_order`

@@ -28,21 +28,39 @@ def step_boundaries(params, cap, steps, spacing):
     lights; Kulla & Fajardo 2012): uniform in the angle θ subtended at the
     light, t = t0 + b·tan θ (t0: the ray's closest approach to the light, b:
     its distance), so segments shrink where 1/r² peaks."""
+    return _steps(params, cap, steps, spacing)[0]
+
+
+def _steps(params, cap, steps, spacing):
+    """(t(s), inverse-square correction c(s)) of :func:`step_boundaries`.
+    ``c(s, offset)`` turns segment s's ``Δt / r²`` at the point the light
+    is evaluated (``s + offset``) into the exact ``∫ dt / r² = Δθ / b``
+    (equiangular; 1 for uniform segments): at the ends of a ray that passes
+    close to the light, where θ → ±π/2, one value of 1/r² is far from the
+    segment's mean."""
     d = cap.d
+    uniform = lambda s: d * (s / steps)            # noqa: E731
     if spacing == "uniform" or params.light.position is None:
-        return lambda s: d * (s / steps)
+        return uniform, lambda s, offset: 1.0
     p_l = mi.Point3f(*map(float, params.light.position))
     q = mi.Vector3f(p_l - cap.o)
     t0 = dr.dot(q, cap.omega)
     b = dr.norm(q - cap.omega * t0)
-    ok = b > 1e-6 * params.scene_extent
+    ok = b > 1e-6 * dr.norm(q)          # the ray is resolvably off the light
     b = dr.select(ok, b, 1.0)
     th_a, th_b = dr.atan2(-t0, b), dr.atan2(d - t0, b)
 
     def t_of(s):
         t = t0 + b * dr.tan(th_a + (th_b - th_a) * (s / steps))
-        return dr.select(ok, dr.clip(t, 0.0, d), d * (s / steps))
-    return t_of
+        return dr.select(ok, dr.clip(t, 0.0, d), uniform(s))
+
+    def correction(s, offset):
+        t1, t2 = t_of(s), t_of(s + 1)
+        tm = t0 + b * dr.tan(th_a + (th_b - th_a) * ((s + offset) / steps))
+        r2 = dr.square(b) + dr.square(tm - t0)
+        c = (th_b - th_a) / steps / b * r2 / dr.maximum(t2 - t1, 1e-30)
+        return dr.select(ok & (t2 > t1), c, 1.0)
+    return t_of, correction
 
 
 def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform",
@@ -54,7 +72,7 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
     sigma_s = color(params.medium.sigma_s)
-    t_of = step_boundaries(params, cap, steps, spacing)
+    t_of, correction = _steps(params, cap, steps, spacing)
     if jitter:
         offset = sample_rng(cap.sample_index(),
                             seed_offset(seed, 0x853C49E6748FEA9B)).next_float32()
@@ -75,7 +93,7 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
         else:
             V = shadow_map.visibility(x)
         f_p = phase_eval(params, cap.omega, wo, x)
-        w = segment_weight(sigma_t, t_of(s), t_of(s + 1))
+        w = segment_weight(sigma_t, t_of(s), t_of(s + 1)) * correction(s, offset)
         L += sigma_s * f_p * L_light * light_transmittance(params, tau) * V * w
         return k + 1, L
 
