@@ -383,6 +383,7 @@ def run_task(task: dict, progress=None) -> list[dict]:
     (:func:`image_errors`).  A failing setting gives a row with
     ``error_message``.  ``progress``: optional callable, called once per
     finished setting."""
+    from .bench import render_with_stages
     from .reference import load_halves, load_reference, render_rgb
     from .scene_loading import load_scene, make_integrator, unwrap_render_error
 
@@ -418,9 +419,9 @@ def run_task(task: dict, progress=None) -> list[dict]:
                 continue
             try:
                 t1 = time.perf_counter()
-                s["image"] = render_rgb(scene, s["integrator"], spp=s["spp"])
+                s["image"], stages = render_with_stages(scene, s["integrator"], spp=s["spp"])
                 s["times"].append(time.perf_counter() - t1)
-                s["stages"].append(dict(getattr(s["integrator"], "timings", None) or {}))
+                s["stages"].append(stages)
             except Exception as exc:  # noqa: BLE001
                 s["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")
     rows = []
