@@ -14,7 +14,7 @@ epipolar slices (rows); ``slices`` is a target, the rows actually built
 recorded.  Per setting:
 
 - times (median of the warm runs, see below) of the stages in
-  ``integrator.timings``: ``prefilter`` (the paper's "prefix sum": basis +
+  the render's ``RenderResult.timings``: ``prefilter`` (the paper's "prefix sum": basis +
   weighted running prefix sums, Listings 1-3), ``evaluate`` (the paper's
   "scattering": per-pixel coefficients and dot products, Listing 4, plus
   the unshadowed sum U(β) and the lit-texel prefix sums), and the stages the

@@ -117,6 +117,9 @@ class SceneSpec:
                                                up=self.up),
                        "film": {"type": "hdrfilm", "width": self.res[0],
                                 "height": self.res[1], "rfilter": {"type": "box"}},
+                       # one sample per pixel, at its centre: the stress set's
+                       # like-for-like convention (the integrators honour it)
+                       "sampler": {"type": "independent", "sample_count": 1},
                        "medium": {"type": "ref", "id": "medium"}},
             "box": {"type": "cube", "to_world": T().scale(B), "bsdf": {"type": "null"},
                     "interior": {"type": "ref", "id": "medium"}},

@@ -10,7 +10,7 @@ thread).  Here, on nave_offscreen and nave_onscreen at 1280x960:
 - the stages ``rectify`` (frame, slices, queries sorted into their sweeps,
   light-ray grid with the box exits, rectified depth, light-side factor)
   and ``blockers`` (blocker angles of ``prefilter`` = 4 sub-rays per light
-  ray, converted to depth modes) of ``integ.timings``, for
+  ray, converted to depth modes) of the render's ``RenderResult.timings``, for
   ``rectification=traced`` (every sub-ray ray-traced with Mitsuba) and
   ``resampled`` (read from a 2048² shadow map; the map's construction is
   inside ``blockers`` and is timed as its own sub-stage ``map build``, so
