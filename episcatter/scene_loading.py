@@ -109,10 +109,9 @@ def check_volpath_medium(scene) -> None:
 
 
 def scene_key(path: str, defines: dict | None = None, extra: str = "") -> str:
-    """Hash of the scene file's bytes, the defines and ``extra``: a cache key
-    for references.  Files the scene references (meshes, textures) are not
-    hashed: the suite generates them deterministically; if you edit one by
-    hand, re-render its reference with ``--force``."""
+    """Hash of the scene file's bytes, the defines and ``extra``.  The
+    reference cache adds the content of every file the scene loads through
+    ``extra`` (:func:`episcatter.reference.reference_key`)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         h.update(f.read())
