@@ -28,7 +28,6 @@ import time
 from dataclasses import dataclass, field
 
 import drjit as dr
-import mitsuba as mi
 import numpy as np
 
 from integrators.capture import capture_camera

@@ -80,7 +80,6 @@ def _camera_positions(width, height, spp, jitter, seed, samples=None):
     (default all, ``pixel·spp + k``); a sample's position depends on its
     index alone."""
     idx = dr.arange(mi.UInt32, width * height * spp) if samples is None else mi.UInt32(samples)
-    n = dr.width(idx)
     pixel = idx // spp
     px = mi.Float(pixel % width)
     py = mi.Float(pixel // width)
