@@ -36,7 +36,7 @@ from integrators.change_mask import (ShadowVolumes, TriangleGroups, change_mask,
                                      whole_frame_changes)
 from integrators.sample_reuse import render_samples, reuse_blocker
 from integrators.scene_params import SceneParams
-from integrators.template import pixel_average, to_image
+from integrators.template import compose_layers
 
 from .motion import ShapeAnimator
 
@@ -148,15 +148,9 @@ class Sequence:
         recomputed = n if mask is None else int(np.count_nonzero(mask_np))
 
         def compose():
-            n_pix = cap.width * cap.height
-            scat = pixel_average(L_scat, cap.pixel, n_pix, self.spp)
-            surf = pixel_average(cap.T_cam * cap.L_surface, cap.pixel, n_pix, self.spp)
-            dist = pixel_average(cap.d, cap.pixel, n_pix, self.spp)
-            full = surf + scat
-            dr.eval(scat, surf, dist, full)
-            w, h = cap.width, cap.height
-            return {"full": to_image(full, w, h), "scattering": to_image(scat, w, h),
-                    "surface": to_image(surf, w, h), "distance": to_image(dist, w, h)}
+            layers = compose_layers(cap, L_scat, self.spp)
+            dr.eval(*layers.values())
+            return layers
         layers = timed("compose", compose)
         timings.update({f"scattering.{k2}": v for k2, v in record.timings.items()
                         if k2 != "scattering"})

@@ -213,6 +213,23 @@ def pixel_average(values, pixel, n_pixels, spp):
     return out * (1.0 / spp)
 
 
+def compose_layers(cap, L_scat, spp, mono=False, computed=None) -> dict:
+    """The image layers of one render (DESIGN §1): ``full = T_cam·L_surface
+    + L_scat``, ``scattering``, ``surface`` and ``distance``, each the box
+    filter of its camera samples; ``computed`` (mi.Bool over the samples)
+    zeroes the surface and distance of samples a partial render skipped."""
+    n_pix = cap.width * cap.height
+    T_L, d = cap.T_cam * cap.L_surface, cap.d
+    if computed is not None:
+        T_L, d = dr.select(computed, T_L, 0.0), dr.select(computed, d, 0.0)
+    scat = pixel_average(L_scat, cap.pixel, n_pix, spp)
+    surf = pixel_average(T_L, cap.pixel, n_pix, spp)
+    dist = pixel_average(d, cap.pixel, n_pix, spp)
+    w, h = cap.width, cap.height
+    return {"full": to_image(surf + scat, w, h, mono), "scattering": to_image(scat, w, h, mono),
+            "surface": to_image(surf, w, h, mono), "distance": to_image(dist, w, h)}
+
+
 def to_image(values, width, height, mono=False):
     """Per-pixel Color3f/Float -> TensorXf (height, width, channels); with
     ``mono`` a Color3f keeps its first channel (the methods compute in
@@ -398,20 +415,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                 L_scat = masked_scattering(self.scattering, params, cap, computed)
             keep.append(L_scat)
         with self.stage("compose") as keep:
-            n_pix = cap.width * cap.height
-            T_L, d = cap.T_cam * cap.L_surface, cap.d
-            if computed is not None:
-                T_L, d = dr.select(computed, T_L, 0.0), dr.select(computed, d, 0.0)
-            scat = pixel_average(L_scat, cap.pixel, n_pix, spp)
-            surf = pixel_average(T_L, cap.pixel, n_pix, spp)
-            dist = pixel_average(d, cap.pixel, n_pix, spp)
-            full = surf + scat
-            keep.extend([scat, surf, dist, full])
+            layers = compose_layers(cap, L_scat, spp, "mono" in variant, computed)
+            keep.extend(layers.values())
         record.timings["total"] = time.perf_counter() - t_start
-        w, h = cap.width, cap.height
-        mono = "mono" in variant
-        layers = {"full": to_image(full, w, h, mono), "scattering": to_image(scat, w, h, mono),
-                  "surface": to_image(surf, w, h, mono), "distance": to_image(dist, w, h)}
         return RenderResult(layers=layers, timings=dict(record.timings),
                             stats=dict(record.stats), samples=computed)
 
