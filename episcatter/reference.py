@@ -473,8 +473,16 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
     store = ChunkStore(chunk_folder(path))
     if force:
         store.clear()
-    metas, rendered = _render_chunks(job, plan, store, scheduler, workers, progress, on_chunk)
-    half_a, half_b, variance = merge_chunks((store.load(seed, n)[0] for seed, n in plan), sizes)
+    # The exact marcher in 1-spp chunks samples every pixel centre with no
+    # random number: every chunk is the same image, so it is rendered once.
+    deterministic = kind == "exact" and all(n == 1 for n in sizes)
+    todo = plan[:1] if deterministic else plan
+    metas, rendered = _render_chunks(job, todo, store, scheduler, workers, progress, on_chunk)
+    if deterministic:
+        metas = {seed: dict(metas[0], seconds=0.0, run="copy of seed 0 (deterministic)")
+                 if seed else metas[0] for seed, _ in plan}
+    half_a, half_b, variance = merge_chunks((store.load(seed, n)[0] for seed, n in todo
+                                             for _ in range(len(plan) // len(todo))), sizes)
     wall = time.perf_counter() - t0
     full = 0.5 * (half_a + half_b)
     chunks = [{"seed": seed, "spp": n, "seconds": metas[seed]["seconds"],
@@ -490,7 +498,7 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
         "seeds": [seed for seed, _ in plan],
         "chunks": chunks,
         "chunks_rendered": len(rendered),
-        "chunks_resumed": len(plan) - len(rendered),
+        "chunks_resumed": len(todo) - len(rendered),
         "halves": {"half_a": "even chunks (seeds 0, 2, ...)",
                    "half_b": "odd chunks (seeds 1, 3, ...)",
                    "spp_each": spp // 2},

@@ -110,6 +110,20 @@ def test_exact_reference_is_deterministic_at_pixel_centres(cache):
     assert rgb.shape == (12, 16, 3) and rgb.mean() > 0
 
 
+def test_pixel_centre_reference_renders_its_image_once(cache):
+    # Bug (issue 10): the 1-spp exact reference rendered the same image twice,
+    # once per half.  It is deterministic, so one chunk is rendered and shared;
+    # a direct render at another seed gives the same bits.
+    rgb, info = reference.render_reference(SCENE, TINY, spp=2, chunk=1, kind="exact",
+                                           steps=32, progress=False)
+    assert info["chunks_rendered"] == 1
+    assert info["chunks"][1]["run"].startswith("copy of seed 0")
+    scene = reference.load_scene(SCENE, TINY)
+    integ, _, _ = reference.reference_integrator(scene, "exact", 32)
+    other = reference.render_rgb(scene, integ, spp=1, seed=1)
+    assert np.array_equal(other.astype(np.float32), rgb)
+
+
 def test_unwrap_render_error():
     inner = ValueError("unsupported camera")
     try:
