@@ -57,8 +57,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    c.limit_blas_threads()
-    rows = [agreement(stem, defines) for stem, defines, _ in AGREEMENT]
+    with c.limit_blas_threads(1):
+        rows = [agreement(stem, defines) for stem, defines, _ in AGREEMENT]
     out = c.output_dir("volpath_agreement", args.out)
     c.write_csv(out / "rows.csv", rows)
     c.write_json(out / "rows.json", {"integrator": SETTINGS, "block": BLOCK}, rows)
