@@ -93,18 +93,13 @@ from rectify.coords import direction_to_alpha_beta
 
 from .epipolar_setup import (LIGHT_SIDE_RANGE, EpipolarQueries, LightRays, QueryTerms,
                              auto_light_rays, gray, light_side_gains, sub_ray_gamma)
-from .integrand_svd import SAMPLES, separate_integrand
-from .kernel_table import tabulated_terms
+from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
+from .kernel_table import nystrom_sums, tabulated_terms
 from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
                               segment_weight)
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
 CONE_MARGIN = 1e-4
-#: extra points per axis on which the automatic rank is checked (besides the
-#: grid; also used by the directional kernel of :mod:`integrators.kernel_separation`)
-CHECK_POINTS = 193
-#: largest automatic rank per colour channel (both light kinds)
-MAX_RANK = 24
 
 
 # --------------------------------------------------------------------------
@@ -580,39 +575,25 @@ def local_kernel(params, sigma_t: float, L: float, x_max: float, tan_half_beta, 
     return kern.cell_mean(b, interval_bounds(gamma, delta_gamma), mi.Float(delta_gamma))
 
 
-def _log1p_grid(c: float, lo: float, hi: float, samples: int = SAMPLES):
-    """``samples`` points uniform in v = log(1 + c (y − lo)) over [lo, hi]
-    and the grid's quadrature weight dy/dv·Δv as a function of y."""
-    v = np.linspace(0.0, math.log1p(c * (hi - lo)), samples)
-
-    def weight(y):
-        return (1.0 + c * (np.asarray(y) - lo)) / c * (v[1] - v[0])
-    return lo + np.expm1(v) / c, weight
-
-
 def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma_lo: float,
                            gamma_hi: float, beta_lo: float, beta_hi: float, rank: int,
                            tol: float):
-    """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over [γ_lo, γ_hi] × [β_lo, β_hi],
-    as :func:`integrators.kernel_separation.separate_channel` does for the
-    directional kernel: M_jk = √w_j K(γ_j, β_k) s_k (s_k normalises each view
-    ray's ∫K dγ, by the grid's quadrature), grids uniform in
-    log(1 + c (γ − γ_lo)), c = σt L tan(β_hi/2) (K's steepest initial decay),
-    and in log(1 + σt L Γ tan(β/2)); Nyström weights
-
-        a_i(γ) = Σ_k K(γ, β_k) WA_ki,   b_i(β) = Σ_j K(γ_j, β) WB_ji.
-
+    """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over [γ_lo, γ_hi] × [β_lo, β_hi]
+    with :func:`~integrators.integrand_svd.separate_sampled_kernel`, as
+    :func:`integrators.kernel_separation.separate_channel` does for the
+    directional kernel; the light kinds differ in K, in the grids -- uniform
+    in log(1 + c (γ − γ_lo)), c = σt L tan(β_hi/2) (K's steepest initial
+    decay), and in log(1 + σt L Γ (tan(β/2) − tan(β_lo/2))) -- and in s_k,
+    here the grid's quadrature of each view ray's ∫K dγ (no closed form).
     Returns ``(γ grid, tan(β grid / 2), WA, WB)``."""
     G = max(gamma_hi - gamma_lo, 1e-30)
-    if not beta_hi > beta_lo:
-        beta_lo, beta_hi = beta_lo - 1e-4, beta_hi + 1e-4
+    beta_lo, beta_hi = widen_empty(beta_lo, beta_hi)
     x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
     c = max(sigma_t * L * x_hi, 1e-6 / G)
-    gamma_grid, weight = _log1p_grid(c, gamma_lo, gamma_hi)
+    gamma_grid, weight = log1p_grid(c, gamma_lo, gamma_hi)
     w_gamma = weight(gamma_grid)
     cb = max(sigma_t * L * G, 1e-6)
-    x_grid, _ = _log1p_grid(cb, x_lo, x_hi)
-    beta_grid = 2.0 * np.arctan(x_grid)
+    x_grid, _ = log1p_grid(cb, x_lo, x_hi)
     K = local_kernel_numpy(params, sigma_t, L, x_max)
 
     def scale(beta):
@@ -620,34 +601,8 @@ def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma
         integral = w_gamma @ K(gamma_grid[:, None], b.ravel()[None, :])
         return (1.0 / np.maximum(integral, 1e-300)).reshape(b.shape)
 
-    def I_w(gamma, beta):
-        return np.sqrt(weight(gamma)) * K(gamma, beta) * scale(beta)
-
-    gamma = np.concatenate([gamma_grid, np.linspace(gamma_lo, gamma_hi, CHECK_POINTS)])
-    beta = np.concatenate([beta_grid, np.linspace(beta_lo, beta_hi, CHECK_POINTS)])
-    sep = separate_integrand(I_w, gamma, beta, N=rank or None, tol=tol,
-                             grid=(gamma_grid, beta_grid), max_N=MAX_RANK)
-    U, VS, sigma = sep.A[:SAMPLES], sep.B[:SAMPLES], sep.singular_values[:sep.N]
-    WA = VS * scale(beta_grid)[:, None] / sigma ** 2
-    WB = np.sqrt(w_gamma)[:, None] * U
-    return gamma_grid, x_grid, WA, WB
-
-
-def nystrom_sums(n_lanes: int, weights: np.ndarray, term):
-    """Σ_k term(k) · weights[k, i] per lane, for each column i, in one
-    Dr.Jit loop; ``term(k)`` gives the lanes' kernel values at grid point k."""
-    K, N = weights.shape
-    W = [mi.Float(np.ascontiguousarray(weights[:, i], np.float32)) for i in range(N)]
-    n_k = dr.opaque(mi.UInt32, K)
-
-    def body(k, acc):
-        e = term(k)
-        return k + 1, tuple(a + e * dr.gather(mi.Float, w, k) for a, w in zip(acc, W))
-
-    _, acc = dr.while_loop(state=(mi.UInt32(0), tuple(dr.zeros(mi.Float, n_lanes)
-                                                      for _ in range(N))),
-                           cond=lambda k, acc: k < n_k, body=body)
-    return list(acc)
+    return separate_sampled_kernel(K, gamma_grid, weight, x_grid, scale, (gamma_lo, gamma_hi),
+                                   (beta_lo, beta_hi), rank, tol)
 
 
 def query_x_max(queries: EpipolarQueries) -> float:

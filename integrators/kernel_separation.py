@@ -12,10 +12,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .epipolar_local_light import CHECK_POINTS, MAX_RANK
 from .epipolar_setup import gray, light_side_gains
-from .integrand_svd import SAMPLES, separate_integrand
-from .kernel_table import tabulated_terms
+from .integrand_svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
+from .kernel_table import nystrom_sums, tabulated_terms
 
 
 # --------------------------------------------------------------------------
@@ -40,81 +39,45 @@ def _phi(x):
 
 def separate_channel(sigma_t: float, gamma_max: float, beta_lo: float, beta_hi: float,
                      rank: int, tol: float):
-    """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over γ ∈ [0, γ_max], β ∈ [β_lo, β_hi] (§6).
+    """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over γ ∈ [0, γ_max], β ∈ [β_lo, β_hi] (§6)
+    with :func:`~integrators.integrand_svd.separate_sampled_kernel`.
 
-    As §6, a 64×64 sample of the kernel is decomposed by an SVD; unlike the
-    paper's uniform grid (whose rank-N error is spent where K is flat), the
-    sampled matrix is
-
-        M_jk = √w_j · K(γ_j, β_k) · s_k,   s_k = 1 / ∫_0^{γ_max} K(γ, β_k) dγ,
-
-    on grids uniform in log(1 + c·γ) and log(1 + σt γ_max tan(β/2))
-    (c = σt tan(β_hi/2): dense where K decays fastest), with w_j the
-    γ-quadrature weights of the grid: M's Frobenius error is then the
-    relative L2 error of each view ray's integrand, the quantity the sweep
-    sums.  (For σt γ_max tan(β/2) ≫ 1, e.g. thick media or view rays near the
+    Unlike the paper's uniform grid (whose rank-N error is spent where K is
+    flat), the grids are uniform in log(1 + c·γ) and log(1 + σt γ_max tan(β/2))
+    (c = σt tan(β_hi/2): dense where K decays fastest), and each view ray is
+    normalised by its exact s_k = 1 / ∫_0^{γ_max} K(γ, β_k) dγ.  (For
+    σt γ_max tan(β/2) ≫ 1, e.g. thick media or view rays near the
     anti-epipole, the uniform grid's sum errors reach 10×; this one keeps
-    them at the tolerance.)  The exact (Nyström) extension of
-    :func:`integrators.integrand_svd.extend_nystrom` gives
-
-        a_i(γ) = Σ_k K(γ, β_k) WA_ki,   WA = V diag(1/σ) · s,
-        b_i(β) = Σ_j K(γ_j, β) WB_ji,   WB = √w · U,
-
-    evaluated in Dr.Jit by :func:`exp_kernel_sum`.  Returns
-    ``(γ grid, tan(β grid / 2), WA, WB)``."""
+    them at the tolerance.)  The Nyström sums are evaluated in Dr.Jit by
+    :func:`exp_kernel_sum`.  Returns ``(γ grid, tan(β grid / 2), WA, WB)``."""
     G = max(float(gamma_max), 1e-30)
-    if not beta_hi > beta_lo:
-        beta_lo, beta_hi = beta_lo - 1e-4, beta_hi + 1e-4
+    beta_lo, beta_hi = widen_empty(beta_lo, beta_hi)
     x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
     c = max(sigma_t * x_hi, 1e-6 / G)
-    v = np.linspace(0.0, math.log1p(c * G), SAMPLES)
-    gamma_grid = np.expm1(v) / c
+    gamma_grid, weight = log1p_grid(c, 0.0, G)
     cb = max(sigma_t * G, 1e-6)
     u = np.linspace(math.log1p(cb * x_lo), math.log1p(cb * x_hi), SAMPLES)
     x_grid = np.expm1(u) / cb
-    beta_grid = 2.0 * np.arctan(x_grid)
-
-    def weight(gamma):                      # dγ/dv · Δv: the grid's quadrature weight
-        return (1.0 + c * gamma) / c * (v[1] - v[0])
 
     def scale(beta):
         return 1.0 / (G * _phi(sigma_t * np.tan(0.5 * beta) * G))
 
-    def I_w(gamma, beta):
-        return np.sqrt(weight(gamma)) * kernel(sigma_t)(gamma, beta) * scale(beta)
-
-    # the automatic rank is checked on the grid and on uniform points
-    gamma = np.concatenate([gamma_grid, np.linspace(0.0, G, CHECK_POINTS)])
-    beta = np.concatenate([beta_grid, np.linspace(beta_lo, beta_hi, CHECK_POINTS)])
-    sep = separate_integrand(I_w, gamma, beta, N=rank or None, tol=tol,
-                             grid=(gamma_grid, beta_grid), max_N=MAX_RANK)
-    U, VS, sigma = sep.A[:SAMPLES], sep.B[:SAMPLES], sep.singular_values[:sep.N]
-    WA = VS * scale(beta_grid)[:, None] / sigma ** 2
-    WB = np.sqrt(weight(gamma_grid))[:, None] * U
-    return gamma_grid, x_grid, WA, WB
+    return separate_sampled_kernel(kernel(sigma_t), gamma_grid, weight, x_grid, scale,
+                                   (0.0, G), (beta_lo, beta_hi), rank, tol)
 
 
 def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t: float):
-    """Σ_k e^{-σt x table[k]} weights[k, i] for each term i, per lane of x
-    (the Nyström sums of :func:`separate_channel` in one Dr.Jit loop)."""
-    K, N = weights.shape
+    """Σ_k e^{-σt x table[k]} weights[k, i] for each term i, per lane of x:
+    the Nyström sums of :func:`separate_channel`
+    (:func:`~integrators.kernel_table.nystrom_sums` of the exponential)."""
     tab = mi.Float(np.asarray(table, np.float32))
     # float32 range: in extreme optical depths (σt·γ_max ≳ 80) some Nyström
     # weights exceed it; their kernel factor e^{-σt x t} has underflowed to
     # 0 there, and an inf weight would turn 0 into NaN
     finite = np.clip(np.nan_to_num(weights, nan=0.0), -1e30, 1e30)
-    W = [mi.Float(np.ascontiguousarray(finite[:, i], np.float32)) for i in range(N)]
     st = dr.opaque(mi.Float, float(sigma_t))
-    n_k = dr.opaque(mi.UInt32, K)
-
-    def body(k, acc):
-        e = dr.exp(-st * x * dr.gather(mi.Float, tab, k))
-        return k + 1, tuple(a + e * dr.gather(mi.Float, w, k) for a, w in zip(acc, W))
-
-    _, acc = dr.while_loop(state=(mi.UInt32(0), tuple(dr.zeros(mi.Float, dr.width(x))
-                                                      for _ in range(N))),
-                           cond=lambda k, acc: k < n_k, body=body)
-    return list(acc)
+    return nystrom_sums(dr.width(x), finite,
+                        lambda k: dr.exp(-st * x * dr.gather(mi.Float, tab, k)))
 
 
 def separated_kernel(params, queries, rays, rank: int, tol: float):

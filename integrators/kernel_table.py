@@ -23,6 +23,25 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+def nystrom_sums(n_lanes: int, weights: np.ndarray, term) -> list:
+    """Σ_k term(k) · weights[k, i] per lane, for each column i, in one
+    Dr.Jit loop: the exact (Nyström) extension of a separated kernel
+    (:func:`integrators.integrand_svd.separate_sampled_kernel`; both light
+    kinds); ``term(k)`` gives the lanes' kernel values at grid point k."""
+    K, N = weights.shape
+    W = [mi.Float(np.ascontiguousarray(weights[:, i], np.float32)) for i in range(N)]
+    n_k = dr.opaque(mi.UInt32, K)
+
+    def body(k, acc):
+        e = term(k)
+        return k + 1, tuple(a + e * dr.gather(mi.Float, w, k) for a, w in zip(acc, W))
+
+    _, acc = dr.while_loop(state=(mi.UInt32(0), tuple(dr.zeros(mi.Float, n_lanes)
+                                                      for _ in range(N))),
+                           cond=lambda k, acc: k < n_k, body=body)
+    return list(acc)
+
+
 #: points of a tabulated Nyström sum
 KERNEL_TABLE = 4096
 
