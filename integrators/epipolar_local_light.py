@@ -58,8 +58,8 @@ widest row's range / (d − 1)); a row starts at a lattice point and has
 ``d_count ≤ d`` light rays, so the kernel's light-ray factors are computed
 once per lattice cell, not once per (row, light ray).
 
-Kernel separation (:func:`separate_local_channel`, :func:`local_separated_kernel`)
----------------------------------------------------------------------------------
+Kernel separation (:func:`separate_local_channel`, :class:`LocalSeparation`)
+----------------------------------------------------------------------------
 K is sampled as in the directional case (log-spaced grids, γ-quadrature
 weights, each view ray normalised), SVD'd and extended exactly (Nyström)
 in Dr.Jit.  K only matters where queries use it (x ≤ x_max, the largest x
@@ -91,9 +91,10 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta
 
-from .epipolar_setup import (LIGHT_SIDE_RANGE, EpipolarQueries, LightRays, QueryTerms,
-                             auto_light_rays, gray, light_side_gains, sub_ray_gamma)
+from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays, gray,
+                             light_ray_channels, light_side_extinction, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
+from .kernel_separation import beta_span
 from .kernel_table import nystrom_sums, tabulated_terms
 from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
                               segment_weight)
@@ -191,7 +192,7 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     the longest camera path ``t_end_max``); dark rows get one light ray.
     Rows with a narrow range thus get fewer light rays, at the common
     spacing, and the kernel is evaluated once per lattice cell
-    (:func:`local_separated_kernel`)."""
+    (:class:`LocalSeparation`)."""
     frame = queries.frame
     lo, hi, lit = light_ray_range(params, queries)
     if not d:
@@ -268,36 +269,18 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     I_mean = I_sum * (1.0 / k)
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
     depth = frame.light_distance - rays.r_in
-    C = _channels(params)
-    if C == 1:
+    if _channels(params) == 1:
         colour = _light_colour(params, frame)
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))
         scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
-        values = I_mean[c] * scale * light_side_extinction(sigma_t[0], depth)
-        L = mi.TensorXf(values, shape=(queries.n, rays.d))
+        values = [I_mean[c] * scale * light_side_extinction(sigma_t[0], depth)]
     else:
-        out = dr.zeros(mi.Float, n_rays * 3)
-        lane = dr.arange(mi.UInt32, n_rays)
-        for ch in range(3):
-            dr.scatter(out, I_mean[ch] * light_side_extinction(sigma_t[ch], depth), lane * 3 + ch)
-        L = mi.TensorXf(out, shape=(queries.n, rays.d, 3))
+        values = [I_mean[ch] * light_side_extinction(sigma_t[ch], depth) for ch in range(3)]
         colour = mi.Color3f(1.0)
+    L = light_ray_channels(values, queries.n, rays.d)
     dr.eval(L.array, lit)
     return L, colour, lit
-
-
-def light_side_extinction(sigma_t: float, depth):
-    """e^{-σt·depth}, depth = L − r_in (NaN/−inf where the light ray misses
-    the box: 0).  A light ray entering the box farther from the light than
-    the eye (depth < 0) is attenuated from there on, so its factor exceeds
-    1; but each of its points x has r ≥ r_in and t ≥ r − L, so it
-    contributes at most e^{-σt (r_in − L)} = e^{σt·depth} of the
-    unattenuated single scattering.  As for a directional light's rows
-    (:func:`~integrators.epipolar_setup.row_reference`), light rays with
-    σt·depth < −c are dropped, which keeps every factor ≤ e^{c}."""
-    e = -float(sigma_t) * depth
-    return dr.select(dr.isfinite(depth) & (e <= LIGHT_SIDE_RANGE), dr.exp(e), 0.0)
 
 
 # --------------------------------------------------------------------------
@@ -611,55 +594,79 @@ def query_x_max(queries: EpipolarQueries) -> float:
     return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
 
 
-def local_separated_kernel(params, queries: EpipolarQueries, rays: LocalLightRays,
-                           rank: int, tol: float):
-    """A (n, d, C, N): the mean of a_i over every light ray's interval, and
-    B (n, r, C, N) at the queries' own β (padded slots: 0); C = 1 for grey σt.
-    A is evaluated once per cell of the light rays' lattice and gathered
-    into the rows (leaf g of row s = cell m_s + g)."""
-    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-    channels = [0] if gray(sigma_t) else [0, 1, 2]
-    L = float(queries.frame.light_distance)
-    x_max = query_x_max(queries)
-    delta = float(rays.delta_gamma[0])
-    M = rays.lattice_size
-    gamma_lo = float(dr.min(rays.gamma_lo)[0])
-    gamma_hi = float(dr.max(rays.gamma_max)[0])
-    beta_lo, beta_hi = float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
-    gains = light_side_gains(sigma_t, L - rays.r_in)
-    seps = [separate_local_channel(params, float(sigma_t[c]), L, x_max, gamma_lo, gamma_hi,
-                                   beta_lo, beta_hi, rank, tol / gains[c]) for c in channels]
-    N = max(s[2].shape[1] for s in seps)
-    C = len(channels)
-    bounds = interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta)
-    tan_half = dr.tan(0.5 * queries.beta)
-    x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
-    A_cells = dr.zeros(mi.Float, M * C * N)
-    B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
-    lane_a = dr.arange(mi.UInt32, M) * (C * N)
-    lane_b = queries.slot * (C * N)
-    for c, (ch, (g_grid, x_grid, WA, WB)) in enumerate(zip(channels, seps)):
-        kern = LocalKernel.of(params, float(sigma_t[ch]), L, x_max)
-        b_grid = Angles.from_tan_half(mi.Float(np.asarray(x_grid, np.float32)))
-        g_grid = Angles.of(mi.Float(g_grid))
-        a_terms = nystrom_sums(M, WA, lambda k: kern.cell_mean(b_grid.gather(k), bounds, delta))
-        # b_i depends on β alone: tabulated in tan(β/2) with the SVD grid's warp
-        def b_sums(x, kern=kern, g_grid=g_grid, WB=WB):
+@dataclass(frozen=True)
+class LocalChannel:
+    """One colour channel of the §9 kernel, separated
+    (:func:`separate_local_channel`), with its Dr.Jit terms
+    (:func:`~integrators.kernel_table.nystrom_sums` of :class:`LocalKernel`)."""
+    kernel: LocalKernel
+    x_lo: float             # tan(β_lo/2) of the queries
+    x_hi: float
+    c_b: float              # the b-table's warp rate σt L (γ_hi − γ_lo)
+    gamma_grid: np.ndarray
+    x_grid: np.ndarray
+    WA: np.ndarray
+    WB: np.ndarray
+
+    @property
+    def N(self) -> int:
+        return self.WA.shape[1]
+
+    def a_terms(self, cells, count: int) -> list:
+        """The mean of a_i over each lattice cell, ``cells = (bounds, Δγ)``
+        (:func:`interval_bounds`)."""
+        bounds, delta = cells
+        b_grid = Angles.from_tan_half(mi.Float(np.asarray(self.x_grid, np.float32)))
+        return nystrom_sums(count, self.WA,
+                            lambda k: self.kernel.cell_mean(b_grid.gather(k), bounds, delta))
+
+    def b_terms(self, tan_half) -> list:
+        """b_i at the queries' tan(β/2): it depends on β alone, so it is
+        tabulated in tan(β/2) with the SVD grid's warp."""
+        g_grid = Angles.of(mi.Float(self.gamma_grid))
+
+        def b_sums(x):
             b = Angles.from_tan_half(x)
-            return nystrom_sums(dr.width(x), WB, lambda k: kern.value(b, g_grid.gather(k)))
-        b_terms = tabulated_terms(tan_half, x_lo, x_hi,
-                                  float(sigma_t[ch]) * L * (gamma_hi - gamma_lo), b_sums)
-        for i in range(WA.shape[1]):
-            dr.scatter(A_cells, a_terms[i], lane_a + c * N + i)
-            dr.scatter(B, b_terms[i], lane_b + c * N + i)
-    # rows: A[s, g, :] = A_cells[m_s + g, :]
-    j = dr.arange(mi.UInt32, queries.n * rays.d * C * N)
-    per_ray = j // (C * N)
-    s_row, g = per_ray // rays.d, per_ray % rays.d
-    cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, M - 1)
-    A = dr.gather(mi.Float, A_cells, cell * (C * N) + j % (C * N))
-    return (mi.TensorXf(A, shape=(queries.n, rays.d, C, N)),
-            mi.TensorXf(B, shape=(queries.n, queries.r, C, N)))
+            return nystrom_sums(dr.width(x), self.WB, lambda k: self.kernel.value(b, g_grid.gather(k)))
+        return tabulated_terms(tan_half, self.x_lo, self.x_hi, self.c_b, b_sums)
+
+
+class LocalSeparation:
+    """The point/spot light's stages of
+    :func:`integrators.kernel_separation.separate_kernel`: A is the mean of
+    a_i over every cell of the light rays' lattice (:class:`LocalLightRays`),
+    evaluated once per cell and gathered into the rows (leaf g of row s =
+    cell m_s + g)."""
+
+    def light_side_path(self, queries, rays: LocalLightRays):
+        """L − r_in: the light side of each light ray (:func:`light_side_extinction`)."""
+        return float(queries.frame.light_distance) - rays.r_in
+
+    def channel(self, params, queries, rays: LocalLightRays, sigma_t: float, rank: int,
+                tol: float) -> LocalChannel:
+        L = float(queries.frame.light_distance)
+        x_max = query_x_max(queries)
+        gamma_lo = float(dr.min(rays.gamma_lo)[0])
+        gamma_hi = float(dr.max(rays.gamma_max)[0])
+        beta_lo, beta_hi = beta_span(queries)
+        sep = separate_local_channel(params, sigma_t, L, x_max, gamma_lo, gamma_hi,
+                                     beta_lo, beta_hi, rank, tol)
+        return LocalChannel(LocalKernel.of(params, sigma_t, L, x_max), math.tan(0.5 * beta_lo),
+                            math.tan(0.5 * beta_hi), sigma_t * L * (gamma_hi - gamma_lo), *sep)
+
+    def kernel_points(self, queries, rays: LocalLightRays):
+        delta = float(rays.delta_gamma[0])
+        M = rays.lattice_size
+        return M, (interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta), delta)
+
+    def to_rows(self, A_cells, queries, rays: LocalLightRays, CN: int):
+        """A[s, g, :] = A_cells[m_s + g, :]."""
+        M = rays.lattice_size
+        j = dr.arange(mi.UInt32, queries.n * rays.d * CN)
+        per_ray = j // CN
+        s_row, g = per_ray // rays.d, per_ray % rays.d
+        cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, M - 1)
+        return dr.gather(mi.Float, A_cells, cell * CN + j % CN)
 
 
 # --------------------------------------------------------------------------

@@ -758,25 +758,48 @@ def axial_exit(params, x, w):
     return t_far, t_far >= t_near
 
 
+def light_side_extinction(sigma_t: float, path, ref=None):
+    """e^{-σt (path − ref)} per light ray (``ref`` None: 0) -- the light
+    side of the per-light-ray factor of both light kinds (directional:
+    path = h, ref = the row's h_ref; point/spot: path = L − r_in) -- and 0
+    where the path is not finite (the light ray misses the box: +inf, NaN)
+    or σt·path < −c (c = ``LIGHT_SIDE_RANGE``).  A light ray whose path is
+    negative (it leaves the box toward the light *behind* the eye) has a
+    factor above 1, but each of its points is at least |path| from the eye,
+    so it contributes at most e^{-σt |path|} of the unattenuated single
+    scattering: dropping those beyond c keeps every factor ≤ e^{c}
+    (:func:`row_reference`)."""
+    rel = path if ref is None else path - ref
+    st = float(sigma_t)
+    return dr.select(dr.isfinite(rel) & (-st * path <= LIGHT_SIDE_RANGE), dr.exp(-st * rel), 0.0)
+
+
+def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:
+    """The per-light-ray factor as the sweep takes it: (n, d) for one
+    channel, (n, d, C) for C, from C Floats of n·d light rays."""
+    if len(values) == 1:
+        return mi.TensorXf(values[0], shape=(n, d))
+    C = len(values)
+    out = dr.zeros(mi.Float, n * d * C)
+    lane = dr.arange(mi.UInt32, n * d)
+    for c, v in enumerate(values):
+        dr.scatter(out, v, lane * C + c)
+    return mi.TensorXf(out, shape=(n, d, C))
+
+
 def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
     """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} at every light ray's centre:
     (n, d) if σt is grey, else (n, d, 3).  Relative to the row's h_ref so
     that thick media stay inside float32's range; the factor e^{-σt h_ref}
     is applied per query (:func:`directional_query_terms`).  Light rays
-    with σt·h < −c contribute at most e^{-c} of full scale and are 0
-    (:func:`row_reference`); so e^{-σt h_ref}·L ≤ e^{c} everywhere."""
+    with σt·h < −c are 0 (:func:`light_side_extinction`); so
+    e^{-σt h_ref}·L ≤ e^{c} everywhere."""
     s, _, _ = rays.lanes()
-    dh = rays.h - dr.gather(mi.Float, rays.h_ref, s)
+    h_ref = dr.gather(mi.Float, rays.h_ref, s)
     sigma_t = params.medium.sigma_t
     channels = [0] if gray(sigma_t) else [0, 1, 2]
-    out = dr.zeros(mi.Float, dr.width(dh) * len(channels))
-    lane = dr.arange(mi.UInt32, dr.width(dh))
-    for c in channels:
-        st = float(sigma_t[c])
-        kept = dr.isfinite(dh) & (st * rays.h >= -LIGHT_SIDE_RANGE)
-        dr.scatter(out, dr.select(kept, dr.exp(-st * dh), 0.0), lane * len(channels) + c)
-    shape = (queries.n, rays.d) if len(channels) == 1 else (queries.n, rays.d, 3)
-    return mi.TensorXf(out, shape=shape)
+    return light_ray_channels([light_side_extinction(sigma_t[c], rays.h, h_ref)
+                               for c in channels], queries.n, rays.d)
 
 
 # --------------------------------------------------------------------------

@@ -7,8 +7,8 @@ The rectified shadow map is built on the epipolar rectification shared with
 :mod:`integrators.fourier_setup`; the Fourier-basis prefilter and the
 per-pixel evaluation are :mod:`integrators.fourier_basis`; the separated
 kernels of ``weights="exact"`` are ``epipolar_tree``'s
-(:func:`integrators.kernel_separation.separated_kernel`,
-:func:`integrators.epipolar_local_light.local_separated_kernel`).  Klehm's
+(the light model's ``separated_kernel``,
+:func:`integrators.kernel_separation.separate_kernel`).  Klehm's
 projective rectification (§4.2, ``rectification="projective"``) takes its
 rows and texels from :mod:`rectify.projective` and its unequal texels'
 integrals (Eq. 12) from :mod:`integrators.fourier_setup`.
@@ -30,7 +30,6 @@ from .capture import capture_shadow_map
 from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choose_slices,
                              epipolar_frame_of, shadow_map_blocker_angles,
                              trace_blocker_angles)
-from .kernel_separation import separated_kernel
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
 from .fourier_exact import exact_average
@@ -427,7 +426,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
         with self.stage("svd") as keep:
             if plan is not None:
-                A, B = texel_separated_kernel(separated_kernel, params, queries, rays,
+                A, B = texel_separated_kernel(model.separated_kernel, params, queries, rays,
                                               self.svd_rank, self.svd_tolerance)
             else:
                 A, B = model.separated_kernel(params, queries, rays, self.svd_rank,

@@ -488,7 +488,7 @@ GAUSS_WEIGHTS = (0.5, 0.5)
 @dataclass(eq=False)
 class _GaussNodes:
     """The Gauss nodes of every texel as equally-indexed 'light rays'
-    (``2d`` per row) for :func:`~integrators.kernel_separation.separated_kernel`,
+    (``2d`` per row) for :func:`~integrators.kernel_separation.separate_kernel`,
     which reads ``d``, ``gamma_max``, ``h`` and ``positions(0.0)``."""
     rays: ProjectiveLightRays
 
@@ -519,7 +519,7 @@ def texel_separated_kernel(separate, params, queries, rays: ProjectiveLightRays,
                            tol: float):
     """A (n, d, C, N): ∫_texel A_n(γ) dγ of every texel (Gauss–Legendre,
     :data:`GAUSS_NODES`, on the exact Nyström extension of ``separate``,
-    i.e. :func:`~integrators.kernel_separation.separated_kernel`, evaluated at
+    i.e. the directional light model's ``separated_kernel``, evaluated at
     each texel's nodes)
     and B (n, r, C, N) at the queries' β, as ``separate`` returns it.
     Σ_n A_n B_n(β) is then the exact texel integral of K(·, β) (to the SVD

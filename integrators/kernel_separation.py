@@ -1,12 +1,22 @@
-"""Separation of the directional light's integrand kernel (Baran §6, Eq. 4):
-K(γ, β) = e^{-σt γ tan(β/2)} ≈ Σ_i a_i(γ) b_i(β) by an SVD of a 64×64 sample
-and its exact (Nyström) extension to every light ray and query.  Shared by
-``epipolar_tree`` and ``fourier_filter``; the point/spot-light kernel is in
-:mod:`integrators.epipolar_local_light`.
+"""The separated kernel (Baran §6, Eq. 4), K(γ, β) ≈ Σ_i a_i(γ) b_i(β), by an
+SVD of a 64×64 sample and its exact (Nyström) extension to every light ray
+and query.  Shared by ``epipolar_tree`` and ``fourier_filter``.
+
+:func:`separate_kernel` is the one path for every light model: it sets the
+SVD tolerance per channel, separates each channel, evaluates the terms in
+Dr.Jit and lays them out as the sweep's A (n, d, C, N) and B (n, r, C, N).
+What differs by light kind is a *separation* object (the light model's
+``separation``) with four stages: ``light_side_path`` (the path length whose
+extinction amplifies the tree's errors), ``channel`` (one colour channel's
+kernel, separated), ``kernel_points`` (where A is evaluated) and ``to_rows``
+(from those points to the rows' light rays).  Here: the directional light's
+K = e^{-σt γ tan(β/2)} (:class:`DirectionalSeparation`); the point/spot
+light's §9 kernel is :class:`integrators.epipolar_local_light.LocalSeparation`.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
@@ -80,38 +90,96 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
                         lambda k: dr.exp(-st * x * dr.gather(mi.Float, tab, k)))
 
 
-def separated_kernel(params, queries, rays, rank: int, tol: float):
-    """A (n, d, C, N) at the start γ_g of every light-ray interval and
-    B (n, r, C, N) at the queries' own β (padded slots: 0);
-    C = 1 for grey σt.  K(γ_g, β)·φ(σt tan(β/2) Δγ) is the exact mean of K
-    over the interval (φ: :func:`~integrators.epipolar_setup.cell_average`,
-    a per-query factor)."""
+def beta_span(queries) -> tuple:
+    """(smallest, largest) β of all queries."""
+    return float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
+
+
+def separate_kernel(separation, params, queries, rays, rank: int, tol: float):
+    """A (n, d, C, N) at the light rays and B (n, r, C, N) at the queries'
+    own β (padded slots: 0) of any light model's kernel (module doc);
+    C = 1 for grey σt.  The automatic rank meets ``tol`` after the light
+    side's largest amplification (:func:`~integrators.epipolar_setup.light_side_gains`
+    of ``separation.light_side_path``), per channel."""
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
     channels = [0] if gray(sigma_t) else [0, 1, 2]
-    gamma_max = float(dr.max(rays.gamma_max)[0])
-    beta_lo, beta_hi = float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
-    x_lo, x_hi = math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi)
-    # the per-query factor e^{-σt h_ref} multiplies the kernel's errors:
-    # the automatic rank meets the tolerance after it (row_reference)
-    gains = light_side_gains(sigma_t, rays.h)
-    seps = [separate_channel(float(sigma_t[c]), gamma_max, beta_lo, beta_hi, rank,
-                             tol / gains[c]) for c in channels]
-    N = max(s[2].shape[1] for s in seps)
-    C = len(channels)
-    _, gamma = rays.positions(0.0)   # cell starts: φ in the query terms averages K
+    gains = light_side_gains(sigma_t, separation.light_side_path(queries, rays))
+    kernels = [separation.channel(params, queries, rays, float(sigma_t[c]), rank, tol / gains[c])
+               for c in channels]
+    N = max(k.N for k in kernels)
+    C = len(kernels)
+    count, points = separation.kernel_points(queries, rays)
     tan_half = dr.tan(0.5 * queries.beta)   # only at the queries; padded slots stay 0
-    A = dr.zeros(mi.Float, dr.width(gamma) * C * N)
+    A = dr.zeros(mi.Float, count * C * N)
     B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
-    lane_a = dr.arange(mi.UInt32, dr.width(gamma)) * (C * N)
+    lane_a = dr.arange(mi.UInt32, count) * (C * N)
     lane_b = queries.slot * (C * N)
-    for c, (ch, (g_grid, x_grid, WA, WB)) in enumerate(zip(channels, seps)):
-        st = float(sigma_t[ch])
-        a_terms = tabulated_terms(gamma, 0.0, gamma_max, st * float(np.max(x_grid)),
-                                  lambda x: exp_kernel_sum(x, x_grid, WA, st))
-        b_terms = tabulated_terms(tan_half, x_lo, x_hi, st * gamma_max,
-                                  lambda x: exp_kernel_sum(x, g_grid, WB, st))
-        for i in range(WA.shape[1]):
+    for c, kern in enumerate(kernels):
+        a_terms = kern.a_terms(points, count)
+        b_terms = kern.b_terms(tan_half)
+        for i in range(kern.N):
             dr.scatter(A, a_terms[i], lane_a + c * N + i)
             dr.scatter(B, b_terms[i], lane_b + c * N + i)
+    A = separation.to_rows(A, queries, rays, C * N)
     return (mi.TensorXf(A, shape=(queries.n, rays.d, C, N)),
             mi.TensorXf(B, shape=(queries.n, queries.r, C, N)))
+
+
+@dataclass(frozen=True)
+class DirectionalChannel:
+    """One colour channel of K = e^{-σt γ tan(β/2)}, separated
+    (:func:`separate_channel`), with its Dr.Jit terms (:func:`exp_kernel_sum`,
+    tabulated)."""
+    sigma_t: float
+    gamma_max: float
+    x_lo: float             # tan(β_lo/2) of the queries
+    x_hi: float
+    gamma_grid: np.ndarray
+    x_grid: np.ndarray
+    WA: np.ndarray
+    WB: np.ndarray
+
+    @property
+    def N(self) -> int:
+        return self.WA.shape[1]
+
+    def a_terms(self, gamma, count: int) -> list:
+        """a_i at light-ray coordinates ``gamma``."""
+        st = self.sigma_t
+        return tabulated_terms(gamma, 0.0, self.gamma_max, st * float(np.max(self.x_grid)),
+                               lambda x: exp_kernel_sum(x, self.x_grid, self.WA, st))
+
+    def b_terms(self, tan_half) -> list:
+        """b_i at the queries' tan(β/2)."""
+        st = self.sigma_t
+        return tabulated_terms(tan_half, self.x_lo, self.x_hi, st * self.gamma_max,
+                               lambda x: exp_kernel_sum(x, self.gamma_grid, self.WB, st))
+
+
+class DirectionalSeparation:
+    """The directional light's stages of :func:`separate_kernel`: A at the
+    start γ_g of every light-ray interval (any layout with ``positions``,
+    ``gamma_max`` and ``h``); K(γ_g, β)·φ(σt tan(β/2) Δγ) is the exact mean
+    of K over the interval (φ: :func:`~integrators.epipolar_setup.cell_average`,
+    a per-query factor)."""
+
+    def light_side_path(self, queries, rays):
+        """h: the per-query factor e^{-σt h_ref} multiplies the kernel's
+        errors (:func:`~integrators.epipolar_setup.row_reference`)."""
+        return rays.h
+
+    def channel(self, params, queries, rays, sigma_t: float, rank: int,
+                tol: float) -> DirectionalChannel:
+        gamma_max = float(dr.max(rays.gamma_max)[0])
+        beta_lo, beta_hi = beta_span(queries)
+        return DirectionalChannel(sigma_t, gamma_max, math.tan(0.5 * beta_lo),
+                                  math.tan(0.5 * beta_hi),
+                                  *separate_channel(sigma_t, gamma_max, beta_lo, beta_hi, rank,
+                                                    tol))
+
+    def kernel_points(self, queries, rays):
+        _, gamma = rays.positions(0.0)   # cell starts: φ in the query terms averages K
+        return dr.width(gamma), gamma
+
+    def to_rows(self, A, queries, rays, CN: int):
+        return A

@@ -18,8 +18,9 @@ stage                      directional (Baran §3–§7) / point, spot (§9)
 ``sub_ray_blockers``       the tree's §7 sub-rays (directional: adaptive)
 ``resample_blockers``      blockers read from an orthographic / perspective or
                            cube shadow map
-``separated_kernel``       Eq. 4: K = e^{-σt γ tan(β/2)} (``kernel_separation``)
-                           / the §9 kernel (``local_separated_kernel``)
+``separated_kernel``       Eq. 4, one path (``kernel_separation.separate_kernel``)
+                           with the model's ``separation``: K = e^{-σt γ tan(β/2)}
+                           at the light rays / the §9 kernel per lattice cell
 ``query_terms``            per-query factors (1/sin β, phase, σs, radiance)
 ``light_length``           the length whose mean free paths set the default
                            light-ray count
@@ -31,13 +32,13 @@ from __future__ import annotations
 
 import drjit as dr
 
-from .epipolar_local_light import (light_ray_factor, local_light_ray_grid, local_query_terms,
-                                   local_separated_kernel, shadow_map_local_blocker_angles,
+from .epipolar_local_light import (LocalSeparation, light_ray_factor, local_light_ray_grid,
+                                   local_query_terms, shadow_map_local_blocker_angles,
                                    trace_local_blocker_angles)
 from .epipolar_setup import (directional_query_terms, light_ray_grid, light_side_factor,
                              shadow_map_blocker_angles, trace_blocker_angles,
                              trace_sub_ray_blockers)
-from .kernel_separation import separated_kernel
+from .kernel_separation import DirectionalSeparation, separate_kernel
 
 
 class LightModel:
@@ -75,9 +76,13 @@ class LightModel:
         """Blocker angle of ``k`` sub-rays per light ray from a shadow map."""
         raise NotImplementedError
 
+    #: the light kind's stages of the kernel separation (:func:`separate_kernel`)
+    separation = None
+
     def separated_kernel(self, params, queries, rays, rank: int, tol: float):
-        """(A, B): the separated kernel at the light rays and the queries."""
-        raise NotImplementedError
+        """(A, B): the separated kernel at the light rays and the queries
+        (one path for both kinds, :func:`~integrators.kernel_separation.separate_kernel`)."""
+        return separate_kernel(self.separation, params, queries, rays, rank, tol)
 
     def query_terms(self, params, cap, queries, rays, colour, V_near):
         """Per-query factors of the integral."""
@@ -88,7 +93,7 @@ class Directional(LightModel):
     """A directional light (Baran §3–§7; DESIGN §1)."""
     KINDS = ("directional",)
     resample_blockers = staticmethod(shadow_map_blocker_angles)
-    separated_kernel = staticmethod(separated_kernel)
+    separation = DirectionalSeparation()
 
     def light_length(self, params, queries, cap):
         return float(dr.max(queries.gamma_end)[0])
@@ -115,7 +120,7 @@ class Local(LightModel):
     local = True
     light_factor = staticmethod(light_ray_factor)
     resample_blockers = staticmethod(shadow_map_local_blocker_angles)
-    separated_kernel = staticmethod(local_separated_kernel)
+    separation = LocalSeparation()
     query_terms = staticmethod(local_query_terms)
 
     def light_length(self, params, queries, cap):

@@ -9,6 +9,7 @@ import pytest
 from integrators import epipolar_setup as es
 from integrators.capture import capture_camera
 from integrators.partial_sum_tree import BlockerModes
+from integrators.light_models import light_model
 from integrators.scene_params import SceneParams
 from rectify import direction_to_alpha_beta_reference, pixel_to_slice_reference
 from tests.conftest import scene_dict
@@ -468,7 +469,7 @@ def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t)
     params, cap, frame, sl, q = setup(light, phase=phase, sigma_t=sigma_t)
     rays = ll.local_light_ray_grid(params, q, 24)
     tol = 1e-4
-    A, B = ll.local_separated_kernel(params, q, rays, 0, tol)
+    A, B = light_model(params).separated_kernel(params, q, rays, 0, tol)
     A, B = np.array(A)[:, :, 0], np.array(B)[:, :, 0]            # (n, d, N), (n, r, N)
     x_max = ll.query_x_max(q)
     L = float(frame.light_distance)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from integrators.capture import capture_camera
-from integrators.epipolar_local_light import light_ray_factor, local_separated_kernel
+from integrators.epipolar_local_light import light_ray_factor
 from integrators.epipolar_setup import (assign_queries, blocker_modes, choose_slices,
                                         epipolar_frame_of, light_side_factor, rectified_depth)
-from integrators.kernel_separation import separated_kernel
+from integrators.light_models import Directional, light_model
 from integrators.fourier_filter import PROJECTIVE_MIN_ANGLE
 from integrators.fourier_setup import (Coverage, ProjectiveLightRays, eq12_ratio_reference,
                                        eq12_weights_reference, query_beta_range,
@@ -356,12 +356,11 @@ def direct_sums(params, queries, rect, integ, blocked=True):
     if not blocked:
         modes = type(modes)(modes.beta, dr.zeros(mi.TensorXf, modes.weight.shape))
     if params.light.kind == "directional":
-        A, B = separated_kernel(params, queries, rays, integ.svd_rank, integ.svd_tolerance)
         L, d_count = light_side_factor(params, queries, rays), None
     else:
-        A, B = local_separated_kernel(params, queries, rays, integ.svd_rank,
-                                      integ.svd_tolerance)
         L, d_count = light_ray_factor(params, queries, rays)[0], np.array(rays.d_count)
+    A, B = light_model(params).separated_kernel(params, queries, rays, integ.svd_rank,
+                                                integ.svd_tolerance)
     out = integrate_slices_reference(rectified_depth(queries, rays), modes, A, B, L=L,
                                      r_count=np.array(queries.r_count), d_count=d_count)
     return out.reshape(queries.n * queries.r, -1)[np.array(queries.slot)]
@@ -574,7 +573,7 @@ def test_projective_separated_kernel_is_the_texel_integral():
     sc = scene(sigma_t=1.0)
     params, integ, plan, queries, rect = projective_case(sc, svd_tolerance=1e-6)
     rays = rect.rays
-    A, B = texel_separated_kernel(separated_kernel, params, queries, rays, 0, 1e-6)
+    A, B = texel_separated_kernel(Directional().separated_kernel, params, queries, rays, 0, 1e-6)
     A, B = np.array(A)[:, :, 0, :], np.array(B)[:, :, 0, :]
     rng = np.random.default_rng(1)
     sel = rng.choice(queries.count, 200, replace=False)
@@ -597,7 +596,7 @@ def projective_direct_sums(params, queries, rect, integ, blocked=True):
     modes = blocker_modes(queries, rays, rect.beta_b, 1)
     if not blocked:
         modes = type(modes)(modes.beta, dr.zeros(mi.TensorXf, modes.weight.shape))
-    A, B = texel_separated_kernel(separated_kernel, params, queries, rays, integ.svd_rank,
+    A, B = texel_separated_kernel(Directional().separated_kernel, params, queries, rays, integ.svd_rank,
                                   integ.svd_tolerance)
     D = np.zeros((queries.n, queries.r), np.float32)
     D[np.array(queries.row), np.array(queries.col)] = query_depth_reference(queries, rays)
