@@ -263,6 +263,20 @@ class ShadowMap:
         v = (dr.dot(q, up) * inv + 1) * 0.5 * res - 0.5
         return face, u, v, dr.norm(q)
 
+    def nearest_depth(self, x) -> mi.Float:
+        """Depth of the texel nearest to where ``x`` projects (the paper's
+        "rectify the shadow map", Baran §3); +inf where the map records no
+        blocker, or outside a perspective map (no information there)."""
+        res = self.res
+        face, u, v, _ = self._coords(x)
+        iu = mi.UInt32(dr.clip(mi.Int32(dr.round(u)), 0, res - 1))
+        iv = mi.UInt32(dr.clip(mi.Int32(dr.round(v)), 0, res - 1))
+        z_b = dr.gather(mi.Float, self.depth, face * res * res + iv * res + iu)
+        if self.kind == "persp":
+            inside = (u > -0.5) & (u < res - 0.5) & (v > -0.5) & (v < res - 0.5)
+            z_b = dr.select(inside, z_b, dr.inf)
+        return z_b
+
     def visibility(self, x, active=True):
         """V(x) in [0, 1]: 2×2 percentage-closer filtered shadow test."""
         res = self.res

@@ -44,8 +44,9 @@ light grows with β.  A light ray first blocked at ``r_b`` shades exactly
 the view rays with ``β > β_b``, β_b = the eye's angle of the blocker point:
 the directional rule, so the sweep over increasing β (Fig. 6) needs no
 change (:func:`trace_local_blocker_angles`, traced from ``p_l``;
-:func:`shadow_map_local_blocker_angles`, read from the perspective/cube
-shadow map).
+:func:`~integrators.epipolar_setup.shadow_map_blocker_angles` with
+:func:`radial_map_point` and :func:`radial_blocker_beta`, read from the
+perspective/cube shadow map).
 
 Light rays (:func:`local_light_ray_grid`)
 -----------------------------------------
@@ -83,7 +84,7 @@ opposite are ray-marched (:func:`~integrators.epipolar_setup.march_ring`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -91,8 +92,8 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta
 
-from .epipolar_setup import (EpipolarQueries, LightRays, QueryTerms, auto_light_rays, gray,
-                             light_ray_channels, light_side_extinction, sub_ray_gamma)
+from .epipolar_setup import (EpipolarQueries, EqualLightRays, QueryTerms, gray, light_ray_channels,
+                             light_ray_count, light_side_extinction, row_gamma_end, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_separation import beta_span
 from .kernel_table import nystrom_sums, tabulated_terms
@@ -107,17 +108,24 @@ CONE_MARGIN = 1e-4
 # Light rays (§9)
 # --------------------------------------------------------------------------
 
-@dataclass(eq=False)
-class LocalLightRays(LightRays):
+@dataclass(frozen=True, eq=False)
+class LocalLightRays(EqualLightRays):
     """Light rays on one lattice of angles at the light (module doc): every
     row has the same ``Δγ``; row s starts at ``γ_lo = m_s·Δγ`` and has
     ``d_count[s] ≤ d`` light rays (leaf g of row s is lattice cell
     ``m_s + g``).  ``r_in`` (n·d,): distance from the light at which each
     light ray (centre) enters the medium box (0 inside it, +inf if it
-    misses the box).  ``h`` and ``h_ref`` (directional) are unused."""
+    misses the box; set by :func:`local_light_ray_grid`)."""
+    d: int
+    gamma_max: mi.Float     # (n,) γ_lo + d_count·Δγ
+    delta_gamma: mi.Float   # (n,) Δγ (the same for every row)
+    gamma_lo: mi.Float      # (n,) m_s·Δγ
+    offset: mi.UInt32       # (n,) m_s
+    d_count: mi.UInt32      # (n,)
     r_in: mi.Float | None = None
-    offset: mi.UInt32 | None = None     # (n,) m_s
-    d_count: mi.UInt32 | None = None    # (n,)
+
+    def row_counts(self) -> mi.UInt32:
+        return self.d_count
 
     @property
     def lattice_size(self) -> int:
@@ -174,9 +182,7 @@ def light_ray_range(params, queries: EpipolarQueries):
     """(γ_lo, γ_hi, lit) per row: ``[0, max γ_end]`` of the row's queries,
     clipped to the spot cone (:func:`cone_interval`); ``lit`` False for rows
     outside the cone (their γ range is then ``[0, max γ_end]``)."""
-    gamma_max = dr.zeros(mi.Float, queries.n)
-    dr.scatter_reduce(dr.ReduceOp.Max, gamma_max, queries.gamma_end, queries.row)
-    gamma_max = dr.maximum(gamma_max, 1e-6)
+    gamma_max = row_gamma_end(queries, 1e-6)
     lo, hi, lit = cone_interval(params, queries.frame, queries.alpha)
     hi = dr.minimum(hi, gamma_max)
     lit &= hi > lo
@@ -195,11 +201,7 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     (:class:`LocalSeparation`)."""
     frame = queries.frame
     lo, hi, lit = light_ray_range(params, queries)
-    if not d:
-        cam = params.camera
-        d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)),
-                            t_end_max)
-    d = max(int(d), 2)
+    d = max(int(light_ray_count(params, d, t_end_max)), 2)
     width = float(dr.max(hi - lo)[0])
     delta = max(width / (d - 1), 1e-7)
     m = mi.UInt32(dr.floor(lo / delta))
@@ -207,12 +209,13 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     count = mi.UInt32(dr.clip(dr.ceil((hi - start) / delta), 1, d))
     count = dr.select(lit, count, 1)
     rays = LocalLightRays(d, start + mi.Float(count) * delta, dr.full(mi.Float, delta, queries.n),
-                          None, None, start, offset=m, d_count=count)
+                          start, offset=m, d_count=count)
     s, gamma = rays.positions(0.5)
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
     t_near, t_far = slabs(mi.Point3f(point(frame.light_position)), w,
                            point(params.medium.bounds_min), point(params.medium.bounds_max))
-    rays.r_in = dr.select(t_far >= dr.maximum(t_near, 0.0), dr.maximum(t_near, 0.0), dr.inf)
+    rays = replace(rays, r_in=dr.select(t_far >= dr.maximum(t_near, 0.0),
+                                        dr.maximum(t_near, 0.0), dr.inf))
     dr.eval(rays.gamma_max, rays.delta_gamma, rays.gamma_lo, rays.r_in, rays.offset, rays.d_count)
     return rays
 
@@ -316,29 +319,19 @@ def trace_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLigh
     return out
 
 
-def shadow_map_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLightRays,
-                                    shadow_map, k: int = 1, seed: int = 0) -> mi.Float:
-    """Like :func:`trace_local_blocker_angles`, but the blocker distance read
-    from a perspective (spot) or cube (point) :class:`~integrators.capture.ShadowMap`
-    (nearest texel, the paper's "rectify the shadow map", §3): the light ray
-    is shadowed beyond ``r_b = z_b + bias`` (the map's own test)."""
-    if shadow_map.kind == "ortho":
-        raise ValueError("a point or spot light needs a perspective or cube shadow map")
-    frame = queries.frame
-    s, gamma = sub_ray_gamma(rays, k, seed)
-    w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
+def radial_map_point(frame, alpha, gamma) -> mi.Point3f:
+    """Point/spot light: the point of light ray (α, γ) at the eye's distance
+    L from the light (where a perspective or cube map looks it up)."""
     p_l = mi.Point3f(point(frame.light_position))
-    face, u, v, _ = shadow_map._coords(p_l + w * float(frame.light_distance))
-    res = shadow_map.res
-    iu = mi.UInt32(dr.clip(mi.Int32(dr.round(u)), 0, res - 1))
-    iv = mi.UInt32(dr.clip(mi.Int32(dr.round(v)), 0, res - 1))
-    z_b = dr.gather(mi.Float, shadow_map.depth, face * res * res + iv * res + iu)
-    known = dr.isfinite(z_b)
-    if shadow_map.kind == "persp":   # outside the map: no blocker information
-        known &= (u > -0.5) & (u < res - 0.5) & (v > -0.5) & (v < res - 0.5)
-    beta_b = dr.select(known, _eye_beta(frame, p_l + w * (z_b + shadow_map.bias)), math.pi)
-    dr.eval(beta_b)
-    return beta_b
+    return p_l + light_ray_direction(frame, alpha, gamma) * float(frame.light_distance)
+
+
+def radial_blocker_beta(params, frame, shadow_map, alpha, gamma, z_b) -> mi.Float:
+    """Point/spot light: the eye's β of the blocker on light ray (α, γ) at
+    ``r_b = z_b + bias`` from the light (a perspective or cube map's own
+    test)."""
+    p_l = mi.Point3f(point(frame.light_position))
+    return _eye_beta(frame, p_l + light_ray_direction(frame, alpha, gamma) * (z_b + shadow_map.bias))
 
 
 # --------------------------------------------------------------------------

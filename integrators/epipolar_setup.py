@@ -89,7 +89,7 @@ host-side tables.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import drjit as dr
@@ -353,23 +353,17 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
 # Light rays (§3, §5)
 # --------------------------------------------------------------------------
 
-@dataclass(eq=False)
-class LightRays:
-    """``d`` light rays per row over ``[γ_lo, γ_max]`` (module doc; ``γ_lo``
-    = 0 unless given: a spot light's rows start at the cone, leaf ``g``
-    covering ``γ_lo + [g, g+1)·Δγ``)."""
-    d: int
-    gamma_max: mi.Float     # (n,)
-    delta_gamma: mi.Float   # (n,)
-    h: mi.Float             # (n·d,) axial exit coordinate h(α, γ) at each centre
-    h_ref: mi.Float         # (n,) smallest h of the row's rays that meet the box
-    gamma_lo: mi.Float | None = None   # (n,) start of the rows' light rays; None: 0
+class LightRayLayout:
+    """The light-ray layout protocol: what every stage after the light rays
+    (blockers, light factor, kernel, sweep, query terms) may read.
 
-    def start(self, s) -> mi.Float:
-        """γ_lo of rows ``s`` (0 when the rows start at the axis)."""
-        if self.gamma_lo is None:
-            return dr.zeros(mi.Float, dr.width(s))
-        return dr.gather(mi.Float, self.gamma_lo, s)
+    Every layout is a frozen dataclass with the fields ``d`` (light rays per
+    row, the sweep's leaves), ``gamma_max`` (n,) (each row's last γ) and
+    ``delta_gamma`` (n,) (each row's light-ray width; the mean width where
+    they are unequal), and the methods :meth:`lanes`, :meth:`positions` and
+    :meth:`row_counts`.  Layouts: :class:`LightRays` (directional),
+    :class:`~integrators.epipolar_local_light.LocalLightRays` (point/spot),
+    :class:`~integrators.fourier_setup.ProjectiveLightRays` (Klehm §4.2)."""
 
     def lanes(self, per_ray: int = 1):
         """(row s, light ray g, sub-ray m) of ``n·d·per_ray`` lanes."""
@@ -380,38 +374,90 @@ class LightRays:
     def positions(self, offset: float = 0.5):
         """(row, γ) of every light ray at ``offset`` ∈ [0, 1] across its
         interval (0.5: its centre, 0: its start), (n·d,) lanes."""
+        raise NotImplementedError
+
+    def row_counts(self):
+        """(n,) light rays that exist per row, or None: all ``d``."""
+        return None
+
+
+class EqualLightRays(LightRayLayout):
+    """Equally wide light rays from each row's ``γ_lo``: leaf ``g`` covers
+    ``γ_lo + [g, g+1)·Δγ``.  Adds the field ``gamma_lo`` ((n,) or None: 0)
+    and :meth:`start`; what the sub-ray, rectified-depth and blocker-mode
+    functions need."""
+
+    def start(self, s) -> mi.Float:
+        """γ_lo of rows ``s`` (0 when the rows start at the axis)."""
+        if self.gamma_lo is None:
+            return dr.zeros(mi.Float, dr.width(s))
+        return dr.gather(mi.Float, self.gamma_lo, s)
+
+    def positions(self, offset: float = 0.5):
         s, g, _ = self.lanes()
         return s, self.start(s) + (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
 
 
-def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
-    """The rows' ``d`` light rays (0: :func:`auto_light_rays`) and where each
-    leaves the medium box toward the light (h; +inf if it misses the box)."""
+@dataclass(frozen=True, eq=False)
+class LightRays(EqualLightRays):
+    """A directional light's ``d`` parallel light rays per row over
+    ``[γ_lo, γ_max]`` (module doc; ``γ_lo`` = 0 unless given) and where
+    each leaves the medium box toward the light (:func:`box_exits`)."""
+    d: int
+    gamma_max: mi.Float     # (n,)
+    delta_gamma: mi.Float   # (n,)
+    h: mi.Float | None = None       # (n·d,) axial exit coordinate h(α, γ) at each centre
+    h_ref: mi.Float | None = None   # (n,) smallest h of the row's rays that meet the box
+    gamma_lo: mi.Float | None = None   # (n,) start of the rows' light rays; None: 0
+
+
+def row_gamma_end(queries: EpipolarQueries, floor: float) -> mi.Float:
+    """(n,) the largest γ_end of each row's queries, at least ``floor``: how
+    far the row's light rays must reach (both light kinds)."""
     gamma_max = dr.zeros(mi.Float, queries.n)
     dr.scatter_reduce(dr.ReduceOp.Max, gamma_max, queries.gamma_end, queries.row)
-    gamma_max = dr.maximum(gamma_max, 1e-6 * params.scene_extent)
-    if not d:
-        cam = params.camera
-        d = auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)),
-                            float(dr.max(gamma_max)[0]))
-    rays = LightRays(int(d), gamma_max, gamma_max / d, None, None)
-    add_box_exits(params, queries, rays)
+    return dr.maximum(gamma_max, floor)
+
+
+def light_ray_count(params, d: int, length: float) -> int:
+    """``d``, or when 0 the automatic count (:func:`auto_light_rays`) for the
+    image and ``length`` (the light model's ``light_length``)."""
+    if d:
+        return d
+    cam = params.camera
+    return auto_light_rays(cam.width, cam.height, float(np.max(params.medium.sigma_t)), length)
+
+
+def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
+    """The rows' ``d`` light rays (0: :func:`auto_light_rays`) and where each
+    leaves the medium box toward the light (h; +inf if it misses the box).
+
+    Directional light rays are parallel, so γ (the distance from the
+    camera–light axis) spaces each row's rays uniformly over its own
+    ``[0, max γ_end]`` and h is each ray's own box exit; a point/spot
+    light's rays share one lattice of angles instead
+    (:func:`~integrators.epipolar_local_light.local_light_ray_grid`)."""
+    gamma_max = row_gamma_end(queries, 1e-6 * params.scene_extent)
+    d = light_ray_count(params, d, float(dr.max(gamma_max)[0]))
+    rays = with_box_exits(params, queries, LightRays(int(d), gamma_max, gamma_max / d))
     dr.eval(rays.gamma_max, rays.delta_gamma)
     return rays
 
 
-def add_box_exits(params, queries: EpipolarQueries, rays) -> None:
-    """Set ``rays.h`` (where the light ray through each centre,
-    ``rays.positions(0.5)``, leaves the medium box toward the light; +inf
-    if it misses the box) and the rows' ``rays.h_ref``
-    (:func:`row_reference`); any light-ray layout with ``positions``."""
+def with_box_exits(params, queries: EpipolarQueries, rays):
+    """``rays`` (a directional layout: :class:`LightRays` or
+    :class:`~integrators.fourier_setup.ProjectiveLightRays`) with ``h``
+    (where the light ray through each centre, ``rays.positions(0.5)``,
+    leaves the medium box toward the light; +inf if it misses the box) and
+    the rows' ``h_ref`` (:func:`row_reference`)."""
     frame = queries.frame
     s, gamma = rays.positions(0.5)
     base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
     h, hits = axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
-    rays.h = dr.select(hits, h, dr.inf)
-    rays.h_ref = row_reference(params, rays.h, s, queries.n)
-    dr.eval(rays.h, rays.h_ref)
+    h = dr.select(hits, h, dr.inf)
+    h_ref = row_reference(params, h, s, queries.n)
+    dr.eval(h, h_ref)
+    return replace(rays, h=h, h_ref=h_ref)
 
 
 #: light-side range c: a light ray leaving the box toward the light at
@@ -477,9 +523,6 @@ def sub_ray_gamma(rays: LightRays, k: int, seed: int):
         rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + 0x2545F4914F6CDD1D * (seed + 1))
         xi = (mi.Float(m) + rng.next_float32()) / k
     return s, rays.start(s) + (mi.Float(g) + xi) * dr.gather(mi.Float, rays.delta_gamma, s)
-
-
-_sub_ray_gamma = sub_ray_gamma
 
 
 def _row_alpha(queries, s):
@@ -659,30 +702,43 @@ def trace_sub_ray_blockers(params, queries: EpipolarQueries, rays: LightRays, k:
     return SubRayBlockers(out, lo, hi)
 
 
-def shadow_map_blocker_angles(params, queries: EpipolarQueries, rays: LightRays, shadow_map,
+def shadow_map_blocker_angles(params, queries: EpipolarQueries, rays, shadow_map, light,
                               k: int = 1, seed: int = 0) -> mi.Float:
-    """Like :func:`trace_blocker_angles`, but ``u_b`` read from an
-    orthographic :class:`~integrators.capture.ShadowMap` (nearest texel, the
-    paper's "rectify the shadow map", §3): a light ray is parallel to the
-    map's rays, so it meets one texel."""
-    if shadow_map.kind != "ortho":
-        raise ValueError("a directional light needs an orthographic shadow map")
+    """Like :func:`trace_blocker_angles`, but each sub-ray's blocker read from
+    a classic :class:`~integrators.capture.ShadowMap` (nearest texel, the
+    paper's "rectify the shadow map", §3), for either light kind: a light ray
+    of either kind is one of the map's own rays (parallel to an orthographic
+    map's, through a perspective or cube map's centre), so it meets one
+    texel.  ``light`` (the light model) names the maps it reads
+    (``shadow_maps``), where a light ray meets its map (``map_point``) and
+    the eye's angle of the blocker at the texel's depth
+    (``map_blocker_beta``); π where the map records no blocker."""
+    if shadow_map.kind not in light.shadow_maps:
+        raise ValueError(f"a {params.light.kind} light needs a shadow map of kind "
+                         f"{' or '.join(light.shadow_maps)}, not {shadow_map.kind!r}")
     frame = queries.frame
     s, gamma = sub_ray_gamma(rays, k, seed)
-    base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
-    _, u, v, _ = shadow_map._coords(base)
-    res = shadow_map.res
-    iu = mi.UInt32(dr.clip(mi.Int32(dr.round(u)), 0, res - 1))
-    iv = mi.UInt32(dr.clip(mi.Int32(dr.round(v)), 0, res - 1))
-    z_b = dr.gather(mi.Float, shadow_map.depth, iv * res + iu)
-    # depth of a point x along the map's rays: z = s0 − x·w; x shadowed iff
-    # z > z_b + bias  ⟺  u < s0 − o·w − z_b − bias (o·w: the base point's)
-    w = np.asarray(shadow_map.frames[0][2], np.float64)
-    top = shadow_map.s0 - float(params.camera.origin @ w) - shadow_map.bias
-    u_b = top - z_b
-    beta_b = dr.select(dr.isfinite(z_b), dr.atan2(gamma, u_b), math.pi)
+    alpha = _row_alpha(queries, s)
+    z_b = shadow_map.nearest_depth(light.map_point(frame, alpha, gamma))
+    beta_b = dr.select(dr.isfinite(z_b),
+                       light.map_blocker_beta(params, frame, shadow_map, alpha, gamma, z_b),
+                       math.pi)
     dr.eval(beta_b)
     return beta_b
+
+
+def axial_map_point(frame: EpipolarFrame, alpha, gamma) -> mi.Point3f:
+    """Directional light: the point u = 0 of light ray (α, γ)."""
+    return light_coords_to_world(frame, alpha, gamma, 0.0)
+
+
+def axial_blocker_beta(params, frame: EpipolarFrame, shadow_map, alpha, gamma, z_b) -> mi.Float:
+    """Directional light: β_b = atan2(γ, u_b) of the blocker at depth z_b of
+    an orthographic map.  A point x at depth z = s0 − x·w is shadowed iff
+    z > z_b + bias ⟺ u < s0 − o·w − z_b − bias (o: the eye)."""
+    w = np.asarray(shadow_map.frames[0][2], np.float64)
+    top = shadow_map.s0 - float(params.camera.origin @ w) - shadow_map.bias
+    return dr.atan2(gamma, top - z_b)
 
 
 def searchsorted_rows(queries: EpipolarQueries, s, x, lo=None, hi=None) -> mi.UInt32:
@@ -920,8 +976,8 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
     sweep's sum is :func:`last_interval_correction`.
 
     ``D``: the sweep's (n, r) depths, clamped to ``[0, d_count]`` as the
-    sweep clamps them (per row for local lights, ``rays.d_count``)."""
-    d_count = getattr(rays, "d_count", None)
+    sweep clamps them (per row where the layout has ``row_counts()``)."""
+    d_count = rays.row_counts()
     d_s = (dr.full(mi.Float, rays.d, queries.count) if d_count is None
            else mi.Float(dr.gather(mi.UInt32, d_count, queries.row)))
     Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)

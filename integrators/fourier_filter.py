@@ -28,8 +28,7 @@ from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, 
 
 from .capture import capture_shadow_map
 from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choose_slices,
-                             epipolar_frame_of, shadow_map_blocker_angles,
-                             trace_blocker_angles)
+                             epipolar_frame_of)
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
 from .fourier_exact import exact_average
@@ -426,7 +425,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
         with self.stage("svd") as keep:
             if plan is not None:
-                A, B = texel_separated_kernel(model.separated_kernel, params, queries, rays,
+                A, B = texel_separated_kernel(model, params, queries, rays,
                                               self.svd_rank, self.svd_tolerance)
             else:
                 A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
@@ -451,9 +450,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         model = light_model(params)
         if isinstance(rays, ProjectiveLightRays):      # one light ray per texel centre
             if self.blockers == "traced":
-                return texel_blocker_angles(trace_blocker_angles, params, queries, rays, 1)
+                return texel_blocker_angles(model.trace_blockers, params, queries, rays, 1)
             shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-            return texel_blocker_angles(shadow_map_blocker_angles, params, queries, rays,
+            return texel_blocker_angles(model.resample_blockers, params, queries, rays,
                                         shadow_map, 1)
         if self.blockers == "traced":
             return model.trace_blockers(params, queries, rays, 1, lit=lit)

@@ -79,9 +79,10 @@ import numpy as np
 
 from rectify.projective import ProjectiveColumns, ProjectiveRows
 
-from .epipolar_setup import (LightRays, add_box_exits, cell_average, directional_query_terms,
-                             rectified_depth)
+from .epipolar_setup import (LightRayLayout, LightRays, cell_average, directional_query_terms,
+                             rectified_depth, with_box_exits)
 from .fourier_basis import FilteredBasis, filtered_visibility, prefix_filter
+from .kernel_separation import separate_kernel
 from .light_transport import color, segment_weight
 
 DEPTH_RANGES = ("slice", "full")
@@ -311,18 +312,16 @@ def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.F
 # hold the exact integral of the kernel over the texel (Eq. 12), and the
 # per-query factor is 1/sin β alone.
 
-@dataclass(eq=False)
-class ProjectiveLightRays:
+@dataclass(frozen=True, eq=False)
+class ProjectiveLightRays(LightRayLayout):
     """``d`` light rays (texels) per row with the edges of
-    :class:`~rectify.projective.ProjectiveColumns` (module section above).
-
-    Has the attributes of :class:`~integrators.epipolar_setup.LightRays`
-    that :func:`~integrators.epipolar_setup.light_side_factor` and
-    :func:`~integrators.epipolar_setup.directional_query_terms` read
-    (``d``, ``lanes``, ``h``, ``h_ref``; ``delta_gamma`` is each row's
-    *mean* texel width); :meth:`start` refuses, so that the functions of
-    equal-width light rays (sub-rays, rectified depth) cannot be fed these
-    by mistake: use :meth:`positions`, :meth:`widths` and :meth:`query_depth`."""
+    :class:`~rectify.projective.ProjectiveColumns` (module section above):
+    a light-ray layout (:class:`~integrators.epipolar_setup.LightRayLayout`)
+    whose texels are not equally wide (``delta_gamma`` is each row's *mean*
+    texel width), so it has no ``start``: the stages of equally wide light
+    rays (sub-rays, rectified depth) take :meth:`positions`, :meth:`widths`
+    and :meth:`query_depth` instead.  ``h``, ``h_ref``: the box exits of a
+    directional light (:func:`~integrators.epipolar_setup.with_box_exits`)."""
     d: int
     columns: ProjectiveColumns
     inv_cos: mi.Float       # (n,) 1/cos φ of each row: γ = x/cos φ
@@ -332,13 +331,6 @@ class ProjectiveLightRays:
     delta_gamma: mi.Float   # (n,) mean texel width of each row
     h: mi.Float = None      # (n·d,) axial exit h(α, γ) of the light ray through each centre
     h_ref: mi.Float = None  # (n,) smallest finite h of the row
-
-    def start(self, s):
-        raise TypeError("projective texels are not equally wide: use positions()/widths()")
-
-    def lanes(self, per_ray: int = 1):
-        """(row s, texel g, sub-ray m) of ``n·d·per_ray`` lanes."""
-        return LightRays.lanes(self, per_ray)
 
     def positions(self, offset: float = 0.5):
         """(row, γ) of every texel at ``offset`` ∈ [0, 1] across it *in
@@ -414,15 +406,14 @@ def projective_light_rays(params, queries, rows: ProjectiveRows,
         x_widths=mi.Float(np.diff(e).astype(np.float32)),
         gamma_max=mi.Float((inv_cos64 * e[-1]).astype(np.float32)),
         delta_gamma=mi.Float((inv_cos64 * (e[-1] - e[0]) / columns.d).astype(np.float32)))
-    add_box_exits(params, queries, rays)
-    return rays
+    return with_box_exits(params, queries, rays)
 
 
 def texel_blocker_angles(read, params, queries, rays: ProjectiveLightRays, *args) -> mi.Float:
     """β_b (n·d) of the light ray through every texel centre, by a blocker
-    reader of equal-width light rays (``trace_blocker_angles``,
-    ``shadow_map_blocker_angles`` of :mod:`integrators.epipolar_setup`,
-    called with ``*args`` after the rays): every texel is handed to it as
+    reader of equal-width light rays (the directional light model's
+    ``trace_blockers`` or ``resample_blockers``, called with ``*args``
+    after the rays): every texel is handed to it as
     a row of its own with one light ray centred on the texel's."""
     s, gamma = rays.positions(0.5)
     w = rays.widths()
@@ -485,46 +476,30 @@ GAUSS_NODES = (0.5 - 0.5 / math.sqrt(3.0), 0.5 + 0.5 / math.sqrt(3.0))
 GAUSS_WEIGHTS = (0.5, 0.5)
 
 
-@dataclass(eq=False)
-class _GaussNodes:
-    """The Gauss nodes of every texel as equally-indexed 'light rays'
-    (``2d`` per row) for :func:`~integrators.kernel_separation.separate_kernel`,
-    which reads ``d``, ``gamma_max``, ``h`` and ``positions(0.0)``."""
-    rays: ProjectiveLightRays
-
-    @property
-    def d(self) -> int:
-        return self.rays.d * len(GAUSS_NODES)
-
-    @property
-    def gamma_max(self):
-        return self.rays.gamma_max
-
-    @property
-    def h(self):
-        return self.rays.h
-
-    def positions(self, offset: float = 0.0):
-        s, lo = self.rays.positions(0.0)
-        w = self.rays.widths()
-        n_g = len(GAUSS_NODES)
-        j = dr.arange(mi.UInt32, dr.width(lo) * n_g)
-        texel, node = j // n_g, j % n_g
-        node_x = dr.gather(mi.Float, mi.Float(np.asarray(GAUSS_NODES, np.float32)), node)
-        return (dr.gather(mi.UInt32, s, texel),
-                dr.gather(mi.Float, lo, texel) + node_x * dr.gather(mi.Float, w, texel))
+def gauss_nodes(rays: ProjectiveLightRays):
+    """(count, γ) of the Gauss nodes of every texel, (n·d·len(GAUSS_NODES),)
+    lanes in (row, texel, node) order: where the texel integrals of the
+    separated kernel are evaluated."""
+    s, lo = rays.positions(0.0)
+    w = rays.widths()
+    n_g = len(GAUSS_NODES)
+    j = dr.arange(mi.UInt32, dr.width(lo) * n_g)
+    texel, node = j // n_g, j % n_g
+    node_x = dr.gather(mi.Float, mi.Float(np.asarray(GAUSS_NODES, np.float32)), node)
+    return dr.width(j), dr.gather(mi.Float, lo, texel) + node_x * dr.gather(mi.Float, w, texel)
 
 
-def texel_separated_kernel(separate, params, queries, rays: ProjectiveLightRays, rank: int,
+def texel_separated_kernel(model, params, queries, rays: ProjectiveLightRays, rank: int,
                            tol: float):
     """A (n, d, C, N): ∫_texel A_n(γ) dγ of every texel (Gauss–Legendre,
-    :data:`GAUSS_NODES`, on the exact Nyström extension of ``separate``,
-    i.e. the directional light model's ``separated_kernel``, evaluated at
-    each texel's nodes)
-    and B (n, r, C, N) at the queries' β, as ``separate`` returns it.
+    :data:`GAUSS_NODES`, on the exact Nyström extension of the directional
+    light ``model``'s kernel, :func:`~integrators.kernel_separation.separate_kernel`,
+    evaluated at each texel's nodes, :func:`gauss_nodes`)
+    and B (n, r, C, N) at the queries' β.
     Σ_n A_n B_n(β) is then the exact texel integral of K(·, β) (to the SVD
     tolerance): no per-query cell factor."""
-    A3, B = separate(params, queries, _GaussNodes(rays), rank, tol)
+    A3, B = separate_kernel(model.separation, params, queries, rays, rank, tol,
+                            points=gauss_nodes(rays))
     n, d, C, N = queries.n, rays.d, A3.shape[2], A3.shape[3]
     n_g = len(GAUSS_NODES)
     CN = C * N

@@ -95,12 +95,16 @@ def beta_span(queries) -> tuple:
     return float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
 
 
-def separate_kernel(separation, params, queries, rays, rank: int, tol: float):
+def separate_kernel(separation, params, queries, rays, rank: int, tol: float, points=None):
     """A (n, d, C, N) at the light rays and B (n, r, C, N) at the queries'
     own β (padded slots: 0) of any light model's kernel (module doc);
     C = 1 for grey σt.  The automatic rank meets ``tol`` after the light
     side's largest amplification (:func:`~integrators.epipolar_setup.light_side_gains`
-    of ``separation.light_side_path``), per channel."""
+    of ``separation.light_side_path``), per channel.  ``points``: (count,
+    points) at which A is evaluated instead of the separation's own
+    ``kernel_points`` (e.g. the Gauss nodes of a projective map's texels,
+    :func:`~integrators.fourier_setup.gauss_nodes`): A is then
+    (n, count / n, C, N), in the points' order."""
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
     channels = [0] if gray(sigma_t) else [0, 1, 2]
     gains = light_side_gains(sigma_t, separation.light_side_path(queries, rays))
@@ -108,7 +112,8 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float):
                for c in channels]
     N = max(k.N for k in kernels)
     C = len(kernels)
-    count, points = separation.kernel_points(queries, rays)
+    own = points is None
+    count, points = separation.kernel_points(queries, rays) if own else points
     tan_half = dr.tan(0.5 * queries.beta)   # only at the queries; padded slots stay 0
     A = dr.zeros(mi.Float, count * C * N)
     B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
@@ -120,8 +125,12 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float):
         for i in range(kern.N):
             dr.scatter(A, a_terms[i], lane_a + c * N + i)
             dr.scatter(B, b_terms[i], lane_b + c * N + i)
-    A = separation.to_rows(A, queries, rays, C * N)
-    return (mi.TensorXf(A, shape=(queries.n, rays.d, C, N)),
+    d = rays.d
+    if own:
+        A = separation.to_rows(A, queries, rays, C * N)
+    else:
+        d = count // queries.n
+    return (mi.TensorXf(A, shape=(queries.n, d, C, N)),
             mi.TensorXf(B, shape=(queries.n, queries.r, C, N)))
 
 

@@ -16,8 +16,11 @@ stage                      directional (Baran §3–§7) / point, spot (§9)
                            light"; ``light_side_factor`` / ``light_ray_factor``)
 ``trace_blockers``         blocker angle per (sub-)ray traced with Mitsuba
 ``sub_ray_blockers``       the tree's §7 sub-rays (directional: adaptive)
-``resample_blockers``      blockers read from an orthographic / perspective or
-                           cube shadow map
+``resample_blockers``      blockers read from a shadow map, one path
+                           (``epipolar_setup.shadow_map_blocker_angles``) with
+                           the model's ``map_point`` / ``map_blocker_beta``:
+                           orthographic map, u = 0 / perspective or cube map,
+                           distance L from the light
 ``separated_kernel``       Eq. 4, one path (``kernel_separation.separate_kernel``)
                            with the model's ``separation``: K = e^{-σt γ tan(β/2)}
                            at the light rays / the §9 kernel per lattice cell
@@ -33,11 +36,11 @@ from __future__ import annotations
 import drjit as dr
 
 from .epipolar_local_light import (LocalSeparation, light_ray_factor, local_light_ray_grid,
-                                   local_query_terms, shadow_map_local_blocker_angles,
+                                   local_query_terms, radial_blocker_beta, radial_map_point,
                                    trace_local_blocker_angles)
-from .epipolar_setup import (directional_query_terms, light_ray_grid, light_side_factor,
-                             shadow_map_blocker_angles, trace_blocker_angles,
-                             trace_sub_ray_blockers)
+from .epipolar_setup import (axial_blocker_beta, axial_map_point, directional_query_terms,
+                             light_ray_grid, light_side_factor, shadow_map_blocker_angles,
+                             trace_blocker_angles, trace_sub_ray_blockers)
 from .kernel_separation import DirectionalSeparation, separate_kernel
 
 
@@ -72,9 +75,21 @@ class LightModel:
         """The tree's §7 sub-ray blockers (default: :meth:`trace_blockers`)."""
         return self.trace_blockers(params, queries, rays, k, lit=lit)
 
-    def resample_blockers(self, params, queries, rays, shadow_map, k: int = 1):
-        """Blocker angle of ``k`` sub-rays per light ray from a shadow map."""
+    #: the shadow-map kinds (:class:`~integrators.capture.ShadowMap`) this model reads
+    shadow_maps: tuple = ()
+
+    def map_point(self, frame, alpha, gamma):
+        """Where light ray (α, γ) is looked up in a shadow map."""
         raise NotImplementedError
+
+    def map_blocker_beta(self, params, frame, shadow_map, alpha, gamma, z_b):
+        """The eye's β of the blocker at map depth ``z_b`` on light ray (α, γ)."""
+        raise NotImplementedError
+
+    def resample_blockers(self, params, queries, rays, shadow_map, k: int = 1):
+        """Blocker angle of ``k`` sub-rays per light ray from a shadow map
+        (one path for both kinds, :func:`~integrators.epipolar_setup.shadow_map_blocker_angles`)."""
+        return shadow_map_blocker_angles(params, queries, rays, shadow_map, self, k)
 
     #: the light kind's stages of the kernel separation (:func:`separate_kernel`)
     separation = None
@@ -92,8 +107,10 @@ class LightModel:
 class Directional(LightModel):
     """A directional light (Baran §3–§7; DESIGN §1)."""
     KINDS = ("directional",)
-    resample_blockers = staticmethod(shadow_map_blocker_angles)
     separation = DirectionalSeparation()
+    shadow_maps = ("ortho",)
+    map_point = staticmethod(axial_map_point)
+    map_blocker_beta = staticmethod(axial_blocker_beta)
 
     def light_length(self, params, queries, cap):
         return float(dr.max(queries.gamma_end)[0])
@@ -119,8 +136,10 @@ class Local(LightModel):
     KINDS = ("point", "spot")
     local = True
     light_factor = staticmethod(light_ray_factor)
-    resample_blockers = staticmethod(shadow_map_local_blocker_angles)
     separation = LocalSeparation()
+    shadow_maps = ("persp", "cube")
+    map_point = staticmethod(radial_map_point)
+    map_blocker_beta = staticmethod(radial_blocker_beta)
     query_terms = staticmethod(local_query_terms)
 
     def light_length(self, params, queries, cap):

@@ -573,7 +573,7 @@ def test_projective_separated_kernel_is_the_texel_integral():
     sc = scene(sigma_t=1.0)
     params, integ, plan, queries, rect = projective_case(sc, svd_tolerance=1e-6)
     rays = rect.rays
-    A, B = texel_separated_kernel(Directional().separated_kernel, params, queries, rays, 0, 1e-6)
+    A, B = texel_separated_kernel(Directional(), params, queries, rays, 0, 1e-6)
     A, B = np.array(A)[:, :, 0, :], np.array(B)[:, :, 0, :]
     rng = np.random.default_rng(1)
     sel = rng.choice(queries.count, 200, replace=False)
@@ -596,7 +596,7 @@ def projective_direct_sums(params, queries, rect, integ, blocked=True):
     modes = blocker_modes(queries, rays, rect.beta_b, 1)
     if not blocked:
         modes = type(modes)(modes.beta, dr.zeros(mi.TensorXf, modes.weight.shape))
-    A, B = texel_separated_kernel(Directional().separated_kernel, params, queries, rays, integ.svd_rank,
+    A, B = texel_separated_kernel(Directional(), params, queries, rays, integ.svd_rank,
                                   integ.svd_tolerance)
     D = np.zeros((queries.n, queries.r), np.float32)
     D[np.array(queries.row), np.array(queries.col)] = query_depth_reference(queries, rays)

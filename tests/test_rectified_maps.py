@@ -7,8 +7,8 @@ light ray of every slice with Mitsuba (``rectification="traced"``,
 :func:`~integrators.epipolar_local_light.trace_local_blocker_angles`) or, as
 Baran et al. 2010 §3 do, by reading the blocker depth of each light ray from
 a square shadow map, nearest texel (``"resampled"``,
-:func:`~integrators.epipolar_setup.shadow_map_blocker_angles`,
-:func:`~integrators.epipolar_local_light.shadow_map_local_blocker_angles`).
+:func:`~integrators.epipolar_setup.shadow_map_blocker_angles`, both light
+kinds).
 Here both are built on suite scenes at 64x48 as ``epipolar_tree`` builds
 them (sinh slices, 2° ring, the automatic ``d`` = 80 light rays per slice),
 with one sub-ray through each light ray's centre (``prefilter=1``), and
@@ -104,6 +104,7 @@ from episcatter.scene_loading import load_scene
 from integrators import epipolar_local_light as ell
 from integrators import epipolar_setup as es
 from integrators.capture import capture_camera, capture_shadow_map, first_surface
+from integrators.light_models import light_model
 from integrators.light_transport import point
 from integrators.scene_params import SceneParams
 from rectify.coords import light_coords_to_world
@@ -221,10 +222,7 @@ def measure(name: str, res: int) -> dict:
     resampled map against the texel-centre trace (``explained_*``)."""
     params, cap, queries, rays, lit, traced = setup(name)
     shadow_map = capture_shadow_map(params, cap, res)
-    if params.light.kind == "directional":
-        resampled = es.shadow_map_blocker_angles(params, queries, rays, shadow_map, 1)
-    else:
-        resampled = ell.shadow_map_local_blocker_angles(params, queries, rays, shadow_map, 1)
+    resampled = light_model(params).resample_blockers(params, queries, rays, shadow_map, 1)
     centre = texel_centre_angles(params, queries, rays, shadow_map)
     out = compare(traced, resampled, lit, queries, rays)
     explained = compare(centre, resampled, lit, queries, rays)
