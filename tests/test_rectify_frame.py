@@ -19,7 +19,8 @@ from rectify import (describe, direction_to_alpha_beta_reference, epipolar_frame
                      world_to_view_coords_reference)
 from rectify._dr import pixel_centres
 from rectify.scenarios import (light_parallel_to_image, light_toward_pixel, nasty_epipoles,
-                               rotated_camera, scenario_strategy)
+                               rotated_camera)
+from tests.strategies import scenario_strategy
 
 #: RECTIFY_EXAMPLES=2000 for a long stress run
 SETTINGS = settings(max_examples=int(os.environ.get("RECTIFY_EXAMPLES", 100)), deadline=None)

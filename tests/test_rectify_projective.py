@@ -13,8 +13,8 @@ from rectify import (alpha_beta_to_direction_reference, epipolar_frame, frustum_
                      projective_apply, projective_apply_reference, projective_rectification)
 from rectify.projective import (auto_splits, bisectrix_alpha, projective_columns,
                                 projective_row_count, projective_rows, row_ndc, share_texels)
-from rectify.scenarios import (light_parallel_to_image, light_toward_pixel, rotated_camera,
-                               scenario_strategy)
+from rectify.scenarios import light_parallel_to_image, light_toward_pixel, rotated_camera
+from tests.strategies import scenario_strategy
 
 FAR = 50.0
 

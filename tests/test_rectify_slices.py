@@ -14,7 +14,8 @@ from rectify import (distance_to_slices, distance_to_slices_reference, epipolar_
                      pixel_to_slice_reference, sinh_slices, slice_segments, slice_to_pixel,
                      slice_to_pixel_reference, uniform_slices)
 from rectify.scenarios import (light_parallel_to_image, light_toward_pixel, nasty_epipoles,
-                               rotated_camera, scenario_strategy)
+                               rotated_camera)
+from tests.strategies import scenario_strategy
 
 #: RECTIFY_EXAMPLES=2000 for a long stress run
 SETTINGS = settings(max_examples=int(os.environ.get("RECTIFY_EXAMPLES", 60)), deadline=None)

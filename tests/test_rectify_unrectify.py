@@ -12,7 +12,8 @@ from rectify import (epipolar_frame, grid_directions, grid_directions_reference,
                      per_slice_beta_grid, ring_mask_reference, shared_beta_grid, sinh_slices,
                      uniform_slices, unrectify, unrectify_bilateral, unrectify_bilateral_reference,
                      unrectify_reference)
-from rectify.scenarios import light_toward_pixel, rotated_camera, scenario_strategy
+from rectify.scenarios import light_toward_pixel, rotated_camera
+from tests.strategies import scenario_strategy
 
 #: RECTIFY_EXAMPLES=2000 for a long stress run
 SETTINGS = settings(max_examples=int(os.environ.get("RECTIFY_EXAMPLES", 40)), deadline=None)
