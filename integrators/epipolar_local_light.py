@@ -95,7 +95,7 @@ from rectify.coords import direction_to_alpha_beta
 from .epipolar_setup import (EpipolarQueries, EqualLightRays, QueryTerms, gray, light_ray_channels,
                              light_ray_count, light_side_extinction, row_gamma_end, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
-from .kernel_separation import beta_span
+from .kernel_separation import SeparatedChannel, beta_span
 from .kernel_table import nystrom_sums, tabulated_terms
 from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
                               segment_weight)
@@ -551,6 +551,17 @@ def local_kernel(params, sigma_t: float, L: float, x_max: float, tan_half_beta, 
     return kern.cell_mean(b, interval_bounds(gamma, delta_gamma), mi.Float(delta_gamma))
 
 
+def local_ray_kernel(params, queries, rays: LocalLightRays, sigma_t: float):
+    """The mean of K(γ, β) over light ray t's interval as a function of
+    (flat light-ray index t, per-lane tan(β/2)) (:func:`local_kernel`); the
+    point/spot light model's ``ray_kernel``."""
+    s, gamma = rays.positions(0.0)
+    L, x_max = float(queries.frame.light_distance), query_x_max(queries)
+    delta = dr.gather(mi.Float, rays.delta_gamma, s)
+    return lambda t, tan: local_kernel(params, sigma_t, L, x_max, tan, dr.gather(mi.Float, gamma, t),
+                                       dr.gather(mi.Float, delta, t))
+
+
 def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma_lo: float,
                            gamma_hi: float, beta_lo: float, beta_hi: float, rank: int,
                            tol: float):
@@ -588,22 +599,12 @@ def query_x_max(queries: EpipolarQueries) -> float:
 
 
 @dataclass(frozen=True)
-class LocalChannel:
+class LocalChannel(SeparatedChannel):
     """One colour channel of the §9 kernel, separated
     (:func:`separate_local_channel`), with its Dr.Jit terms
     (:func:`~integrators.kernel_table.nystrom_sums` of :class:`LocalKernel`)."""
     kernel: LocalKernel
-    x_lo: float             # tan(β_lo/2) of the queries
-    x_hi: float
     c_b: float              # the b-table's warp rate σt L (γ_hi − γ_lo)
-    gamma_grid: np.ndarray
-    x_grid: np.ndarray
-    WA: np.ndarray
-    WB: np.ndarray
-
-    @property
-    def N(self) -> int:
-        return self.WA.shape[1]
 
     def a_terms(self, cells, count: int) -> list:
         """The mean of a_i over each lattice cell, ``cells = (bounds, Δγ)``
@@ -644,8 +645,9 @@ class LocalSeparation:
         beta_lo, beta_hi = beta_span(queries)
         sep = separate_local_channel(params, sigma_t, L, x_max, gamma_lo, gamma_hi,
                                      beta_lo, beta_hi, rank, tol)
-        return LocalChannel(LocalKernel.of(params, sigma_t, L, x_max), math.tan(0.5 * beta_lo),
-                            math.tan(0.5 * beta_hi), sigma_t * L * (gamma_hi - gamma_lo), *sep)
+        return LocalChannel(math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi), *sep,
+                            kernel=LocalKernel.of(params, sigma_t, L, x_max),
+                            c_b=sigma_t * L * (gamma_hi - gamma_lo))
 
     def kernel_points(self, queries, rays: LocalLightRays):
         delta = float(rays.delta_gamma[0])

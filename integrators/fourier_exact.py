@@ -19,25 +19,21 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .epipolar_local_light import local_kernel, query_x_max
 from .fourier_setup import ProjectiveLightRays, texel_integral
+from .light_models import light_model
 
 
 def texel_kernel(params, queries, rays, sigma_t: float):
     """``K(texel, tan(β/2))``: a function of (flat texel index, per-lane
     tan(β/2)) giving the kernel of :func:`~integrators.fourier_references.row_kernel`
-    for any β (one value per lane)."""
-    s, gamma = rays.positions(0.0)
+    for any β (one value per lane): the light model's ``ray_kernel``, or a
+    projective map's texel integral (Eq. 12)."""
     if isinstance(rays, ProjectiveLightRays):
+        s, gamma = rays.positions(0.0)
         widths = rays.widths()
         return lambda t, tan: texel_integral(dr.gather(mi.Float, gamma, t),
                                              dr.gather(mi.Float, widths, t), sigma_t * tan)
-    if params.light.kind == "directional":
-        return lambda t, tan: dr.exp(-sigma_t * dr.gather(mi.Float, gamma, t) * tan)
-    L, x_max = float(queries.frame.light_distance), query_x_max(queries)
-    delta = dr.gather(mi.Float, rays.delta_gamma, s)
-    return lambda t, tan: local_kernel(params, sigma_t, L, x_max, tan, dr.gather(mi.Float, gamma, t),
-                                       dr.gather(mi.Float, delta, t))
+    return light_model(params).ray_kernel(params, queries, rays, sigma_t)
 
 
 def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
@@ -54,7 +50,7 @@ def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
     tan = dr.tan(0.5 * queries.beta)
     beta = queries.beta
     active = mi.Bool(active)
-    geometric = (recurrence and params.light.kind == "directional"
+    geometric = (recurrence and light_model(params).kernel_recurrence
                  and not isinstance(rays, ProjectiveLightRays))
     if geometric:
         c = sigma_t * tan

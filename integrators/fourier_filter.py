@@ -33,8 +33,7 @@ from .light_models import light_model
 from .fourier_basis import check_M, region_length
 from .fourier_exact import exact_average
 from .fourier_rows import rectified_size, row_spacing
-from .fourier_references import (decay_length, interpolated_sum, reference_rays,
-                                 restrict_rows, row_kernel)
+from .fourier_references import interpolated_sum, reference_rays, restrict_rows, row_kernel
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             ProjectiveLightRays, prefilter_rows, projective_light_rays,
                             projective_query_terms, projective_x_range, query_beta_range,
@@ -55,14 +54,9 @@ BLOCKERS = ("traced", "resampled")
 #: default ``projective_min_angle`` [deg]: ``auto`` takes the projective map
 #: when every view ray of the image is at least this far from the light
 #: direction (Klehm §4.2: "distance of the epipole to screen border").
-#: Measured at 320×240 and 640×480 (the README): the error equals the
-#: epipolar slices' at every angle (0.95-1.2×) but the time is 1.1-1.4× the
-#: epipolar path's even at 41-49° (the rows needed for the half-pixel bound
-#: are 1.03× Baran's sinh slices at 49°, 1.2× at 30°, 7× at 2.4°, and the
-#: unequal texels cost a larger kernel stage); on ``beam``, whose shaft
-#: edges run along the rows, its default rows gave a far larger error.  On
-#: this CPU it never pays, so ``auto`` keeps the epipolar slices unless the
-#: threshold is lowered (90°: at most one view direction qualifies).
+#: 90°: at most one view direction qualifies, so ``auto`` keeps the epipolar
+#: slices unless the threshold is lowered; the README ("projective against
+#: epipolar rectification") has the measurements behind this default.
 PROJECTIVE_MIN_ANGLE = 90.0
 #: ``rectification="projective"`` is refused closer than this [deg]
 #: (rectify.projective's default: the map degenerates, Klehm's fallback)
@@ -159,11 +153,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     texel width, ``exact`` the Gauss–Legendre integral of the separated
     kernel), and the segment between the map's first edge and the camera
     ray's origin is taken in closed form with the first texel's
-    visibility.  Accuracy equals the epipolar slices' (measured relMSE
-    0.95-1.2× theirs at equal settings at 320×240, 0.5-1.6× at 32×24,
-    1.03× on the nave at 640×480); it costs more rows as the epipole nears
-    the screen and ~1.2× the time when far off it (no rasterisation to
-    gain in a ray tracer), hence ``auto`` (below).  Blockers are traced (or read
+    visibility.  It needs more rows as the epipole nears the screen and
+    has no rasterisation to gain in a ray tracer, hence ``auto`` (below;
+    its accuracy and time against the epipolar slices: README, "projective
+    against epipolar rectification").  Blockers are traced (or read
     from the shadow map) along the light ray through each texel centre.
 
     ``visibility`` chooses how the weighted visibility V̄ is obtained:
@@ -243,11 +236,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                on-screen (anti-)epipole or view rays
                                within 5° of the light direction)
     ``projective_min_angle``   ``auto``'s threshold in degrees (default
-                               90: never -- the projective path measured
-                               1.1-1.4× slower than the epipolar one at
-                               equal error at every angle on this CPU;
-                               ``PROJECTIVE_MIN_ANGLE``); 40 takes it where
-                               its rows are within 8 % of the sinh slices'
+                               90: never, ``PROJECTIVE_MIN_ANGLE``; the
+                               README says why and where a lower one pays)
     ``projective_splits``      Klehm's splits of the projective columns;
                                0 (default): automatic, each spans ≤ 2× in x
                                (:func:`~rectify.projective.auto_splits`)
@@ -359,7 +349,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         if self.rectification == "epipolar":
             return None
         explicit = self.rectification == "projective"
-        if is_local(params):
+        if not light_model(params).projective:
             if explicit:
                 raise ValueError(
                     f"fourier_filter: rectification='projective' supports directional "
@@ -420,7 +410,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)
-            smap = rectified_shadow_map(queries, rays, beta_b, self.depth_range)
+            smap = self.rectified_map(queries, rays, beta_b)
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
         with self.stage("svd") as keep:
@@ -432,7 +422,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               self.svd_tolerance)
             keep.extend([A, B])
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-        length = decay_length(params, queries, cap)
+        length = model.light_length(params, queries, cap)
         U, V = [], []
         for c in range(channels(L, A)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
@@ -441,6 +431,12 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             U.append(U_c)
             V.append(V_c)
         return RectifiedSums(rays, beta_b, U, V, colour)
+
+    def rectified_map(self, queries, rays, beta_b):
+        """The rectified shadow map of the blocker angles (§2.2, §4.1;
+        :func:`~integrators.fourier_setup.rectified_shadow_map`): a stage
+        method, so an experiment observes the map by overriding it."""
+        return rectified_shadow_map(queries, rays, beta_b, self.depth_range)
 
     def blocker_angles(self, params, cap, queries, rays, lit=None):
         """β_b per light ray (one ray through each texel's centre): traced
@@ -464,7 +460,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
         with ``clamp``, Appendix A); ``length``: the decay length of the
-        reference rays (:func:`~integrators.fourier_references.decay_length`)."""
+        reference rays (the light model's ``light_length``)."""
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
@@ -499,7 +495,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         direct sum many times the filter's cost)."""
         if self.visibility_used != "exact":
             return False
-        return self.visibility == "exact" or not is_local(params)
+        return self.visibility == "exact" or light_model(params).auto_direct_sum
 
     def filtered(self, queries, smap, cover, w, clamp: bool):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
@@ -566,11 +562,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
 TEXEL_FACTOR = 4
 #: ... but not above this (unless epipolar_tree's own count is larger)
 MAX_AUTO_TEXELS = 1024
-
-
-def is_local(params) -> bool:
-    """A point or spot light (Baran §9 light rays), not a directional one."""
-    return params.light.kind != "directional"
 
 
 @dataclass(eq=False)

@@ -45,22 +45,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .epipolar_local_light import local_kernel, query_x_max
 from .fourier_setup import ProjectiveLightRays, query_beta_range, texel_integral
+from .light_models import light_model
 
 #: spacing of the reference rays in s = log(1 + σt tan(β/2) ℓ)
 SPACING = 0.3
 #: most reference rays per row of the automatic count
 MAX_REFERENCE_RAYS = 16
-
-
-def decay_length(params, queries, cap) -> float:
-    """ℓ [m]: the longest stretch of light ray a row's queries cover
-    (directional: the largest γ_end; point/spot: the longest camera path,
-    near-plane offset included), over which the medium's decay is counted."""
-    if params.light.kind != "directional":
-        return float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
-    return float(dr.max(queries.gamma_end)[0])
 
 
 def decay_coordinate(beta, sigma_t: float, length: float):
@@ -160,11 +151,8 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
     tan_ref = dr.gather(mi.Float, tan_ref, s)
     if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
         return texel_integral(gamma, rays.widths(), sigma_t * tan_ref)
-    if params.light.kind == "directional":
-        return dr.exp(-sigma_t * gamma * tan_ref)
-    return local_kernel(params, sigma_t, float(queries.frame.light_distance),
-                        query_x_max(queries), tan_ref, gamma,
-                        dr.gather(mi.Float, rays.delta_gamma, s))
+    kernel = light_model(params).ray_kernel(params, queries, rays, sigma_t)
+    return kernel(dr.arange(mi.UInt32, dr.width(gamma)), tan_ref)
 
 
 def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:

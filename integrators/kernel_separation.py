@@ -90,6 +90,15 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
                         lambda k: dr.exp(-st * x * dr.gather(mi.Float, tab, k)))
 
 
+def directional_ray_kernel(params, queries, rays, sigma_t: float):
+    """K(γ_t, β) = e^{-σt γ_t tan(β/2)} as a function of (flat light-ray
+    index t, per-lane tan(β/2)), γ_t the light ray's start (equally wide
+    rays: φ of the interval's mean is common to a row and cancels in a
+    weighted average); the directional light model's ``ray_kernel``."""
+    _, gamma = rays.positions(0.0)
+    return lambda t, tan: dr.exp(-sigma_t * dr.gather(mi.Float, gamma, t) * tan)
+
+
 def beta_span(queries) -> tuple:
     """(smallest, largest) β of all queries."""
     return float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
@@ -135,22 +144,31 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
 
 
 @dataclass(frozen=True)
-class DirectionalChannel:
-    """One colour channel of K = e^{-σt γ tan(β/2)}, separated
-    (:func:`separate_channel`), with its Dr.Jit terms (:func:`exp_kernel_sum`,
-    tabulated)."""
-    sigma_t: float
-    gamma_max: float
+class SeparatedChannel:
+    """One colour channel of a light model's kernel as
+    :func:`~integrators.integrand_svd.separate_sampled_kernel` returns it
+    (its grids and Nyström weights) and the queries' tan(β/2) range; the
+    light model's subclass adds ``a_terms(points, count)`` and
+    ``b_terms(tan_half)``, the N terms in Dr.Jit."""
     x_lo: float             # tan(β_lo/2) of the queries
     x_hi: float
     gamma_grid: np.ndarray
-    x_grid: np.ndarray
+    x_grid: np.ndarray      # tan(β/2) of the β grid
     WA: np.ndarray
     WB: np.ndarray
 
     @property
     def N(self) -> int:
         return self.WA.shape[1]
+
+
+@dataclass(frozen=True)
+class DirectionalChannel(SeparatedChannel):
+    """One colour channel of K = e^{-σt γ tan(β/2)}, separated
+    (:func:`separate_channel`), with its Dr.Jit terms (:func:`exp_kernel_sum`,
+    tabulated)."""
+    sigma_t: float
+    gamma_max: float
 
     def a_terms(self, gamma, count: int) -> list:
         """a_i at light-ray coordinates ``gamma``."""
@@ -181,10 +199,9 @@ class DirectionalSeparation:
                 tol: float) -> DirectionalChannel:
         gamma_max = float(dr.max(rays.gamma_max)[0])
         beta_lo, beta_hi = beta_span(queries)
-        return DirectionalChannel(sigma_t, gamma_max, math.tan(0.5 * beta_lo),
-                                  math.tan(0.5 * beta_hi),
-                                  *separate_channel(sigma_t, gamma_max, beta_lo, beta_hi, rank,
-                                                    tol))
+        g_grid, x_grid, WA, WB = separate_channel(sigma_t, gamma_max, beta_lo, beta_hi, rank, tol)
+        return DirectionalChannel(math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi), g_grid,
+                                  x_grid, WA, WB, sigma_t=sigma_t, gamma_max=gamma_max)
 
     def kernel_points(self, queries, rays):
         _, gamma = rays.positions(0.0)   # cell starts: φ in the query terms averages K

@@ -26,8 +26,29 @@ stage                      directional (Baran §3–§7) / point, spot (§9)
                            at the light rays / the §9 kernel per lattice cell
 ``query_terms``            per-query factors (1/sin β, phase, σs, radiance)
 ``light_length``           the length whose mean free paths set the default
-                           light-ray count
+                           light-ray count (and ``fourier_filter``'s reference rays)
+``ray_kernel``             K of one light ray at any β (``fourier_filter``'s
+                           weights and direct sum): e^{-σt γ tan(β/2)} / the
+                           §9 kernel's interval mean
+``projective``,            flags: Klehm's projective map (parallel rays only),
+``kernel_recurrence``,     a geometric kernel over equal rays, and
+``auto_direct_sum``        ``fourier_filter``'s ``visibility=auto`` choice
 =========================  ==================================================
+
+Where the maths is one, a stage is one function parametrised by the model
+(``separated_kernel``: the weighted SVD and Nyström path with the model's
+``separation``; ``resample_blockers``: one shadow-map read with the model's
+``map_point`` / ``map_blocker_beta``; the light-side extinction and the
+channel layout of ``light_factor``; the rows' γ range and light-ray count
+of ``light_rays``).  Where it truly differs the model keeps its own stage:
+``light_rays`` (parallel rays, γ a distance, each with its own box exit h /
+rays from the light on one lattice of angles, clipped to a spot's cone),
+``light_factor`` (e^{-σt h} relative to the row's reference / Mitsuba's
+intensity with fall-off and texture times e^{-σt (L − r_in)}),
+``trace_blockers`` (traced down from above the scene along −w_l / out of
+the light; the directional tree's adaptive §7 sub-rays), ``query_terms``
+(1/sin β with the phase a per-query factor / 1/(L sin β) with the phase
+inside the kernel) -- their geometry is different, not their code.
 
 :func:`light_model` picks the model of a scene's light.
 """
@@ -36,12 +57,12 @@ from __future__ import annotations
 import drjit as dr
 
 from .epipolar_local_light import (LocalSeparation, light_ray_factor, local_light_ray_grid,
-                                   local_query_terms, radial_blocker_beta, radial_map_point,
-                                   trace_local_blocker_angles)
+                                   local_query_terms, local_ray_kernel, radial_blocker_beta,
+                                   radial_map_point, trace_local_blocker_angles)
 from .epipolar_setup import (axial_blocker_beta, axial_map_point, directional_query_terms,
                              light_ray_grid, light_side_factor, shadow_map_blocker_angles,
                              trace_blocker_angles, trace_sub_ray_blockers)
-from .kernel_separation import DirectionalSeparation, separate_kernel
+from .kernel_separation import DirectionalSeparation, directional_ray_kernel, separate_kernel
 
 
 class LightModel:
@@ -103,11 +124,29 @@ class LightModel:
         """Per-query factors of the integral."""
         raise NotImplementedError
 
+    def ray_kernel(self, params, queries, rays, sigma_t: float):
+        """K of light ray t at tan(β/2), as a callable ``(t, tan)`` (the
+        reference-ray weights and the direct sum of ``fourier_filter``)."""
+        raise NotImplementedError
+
+    #: whether the kernel is geometric over equally wide light rays
+    #: (e^{-c γ_{g+1}} = e^{-c γ_g} e^{-c Δγ}), so a direct sum may step it
+    kernel_recurrence = False
+    #: whether Klehm's projective rectification (§4.2, parallel light rays) applies
+    projective = False
+    #: whether ``fourier_filter``'s ``visibility="auto"`` takes the direct
+    #: sum (cheap where the kernel is a recurrence) rather than the filter
+    auto_direct_sum = False
+
 
 class Directional(LightModel):
     """A directional light (Baran §3–§7; DESIGN §1)."""
     KINDS = ("directional",)
     separation = DirectionalSeparation()
+    ray_kernel = staticmethod(directional_ray_kernel)
+    kernel_recurrence = True
+    projective = True
+    auto_direct_sum = True
     shadow_maps = ("ortho",)
     map_point = staticmethod(axial_map_point)
     map_blocker_beta = staticmethod(axial_blocker_beta)
@@ -137,6 +176,7 @@ class Local(LightModel):
     local = True
     light_factor = staticmethod(light_ray_factor)
     separation = LocalSeparation()
+    ray_kernel = staticmethod(local_ray_kernel)
     shadow_maps = ("persp", "cube")
     map_point = staticmethod(radial_map_point)
     map_blocker_beta = staticmethod(radial_blocker_beta)

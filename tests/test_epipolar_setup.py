@@ -82,6 +82,40 @@ def test_queries_against_per_sample_numpy(light):
     assert np.all(D.max(axis=1) <= 40 + 1e-3)
 
 
+@pytest.mark.parametrize("light", ["directional", "point"])
+def test_light_ray_layouts_are_frozen_and_share_one_protocol(light):
+    """Every layout is a frozen dataclass of the LightRayLayout protocol:
+    ``d``, ``gamma_max``, ``delta_gamma``, ``lanes``, ``positions``,
+    ``row_counts`` (None: all d); ``with_box_exits`` returns a copy.  The
+    kernel evaluated at explicitly given points (``separate_kernel``'s
+    ``points``, the projective map's path) equals the model's own layout."""
+    import dataclasses
+
+    from integrators.kernel_separation import separate_kernel
+
+    params, cap, frame, sl, q = setup(light)
+    model = light_model(params)
+    rays = model.light_rays(params, q, 16, cap)
+    assert isinstance(rays, es.LightRayLayout) and isinstance(rays, es.EqualLightRays)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rays.d = 3
+    s, g, _ = rays.lanes()
+    assert dr.width(s) == q.n * rays.d
+    counts = rays.row_counts()
+    assert (counts is None) == (light == "directional")
+    if light == "directional":
+        bare = es.LightRays(rays.d, rays.gamma_max, rays.delta_gamma)
+        exits = es.with_box_exits(params, q, bare)
+        assert bare.h is None and np.array_equal(np.array(exits.h), np.array(rays.h))
+        own = separate_kernel(model.separation, params, q, rays, 0, 1e-3)
+        given = separate_kernel(model.separation, params, q, rays, 0, 1e-3,
+                                points=model.separation.kernel_points(q, rays))
+        assert np.array_equal(np.array(own[0]), np.array(given[0]))
+        assert np.array_equal(np.array(own[1]), np.array(given[1]))
+    else:
+        assert np.all(np.array(counts) <= rays.d)
+
+
 def first_blocker_u(base, w):
     """NumPy oracle: largest u where the line base + u w meets the sphere or
     the floor rectangle (the first blocker coming from the light), or None."""
