@@ -46,7 +46,7 @@ import time
 from episcatter import bench
 
 from . import common as c
-from .fourier_table2 import STAGES, load_text, paper_time, record_shadow_maps, timing_columns
+from .fourier_table2 import STAGES, load_text, paper_time, recording_filter, timing_columns
 
 NAME = "fourier_scene_independence"
 SUITE = ["nave_offscreen", "nave_onscreen", "grove", "terrain", "spot_room", "point_fog", "beam"]
@@ -74,11 +74,12 @@ def settings_for(quick: bool) -> dict:
 
 def timed_render(scene, integrator, log: list) -> tuple:
     """(image, wall seconds, stage timings, process CPU seconds) of one
-    render, its rectified shadow map recorded."""
-    with record_shadow_maps(log):
-        t0, cpu0 = time.perf_counter(), time.process_time()
-        img, stages = bench.render_with_stages(scene, integrator, spp=1)
-        seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    render of a :func:`~experiments.fourier_table2.recording_filter`, its
+    rectified shadow map appended to ``log``."""
+    integrator.map_log = log
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    img, stages = bench.render_with_stages(scene, integrator, spp=1)
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     return img, seconds, stages, cpu
 
 
@@ -141,7 +142,7 @@ def measure(scene_names: list[str], s: dict, repeats: int, progress: bool) -> li
     for name in scene_names:
         scene = c.load(c.scene_file(name), defines)
         for label, props in s["settings"].items():
-            jobs[(name, label)] = (scene, c.build("fourier_filter", props))
+            jobs[(name, label)] = (scene, recording_filter(props, []))
     load_before = c.load_average()
     timed = interleaved_times(jobs, repeats, progress)
     load_after = c.load_average()

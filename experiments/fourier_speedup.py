@@ -53,8 +53,7 @@ import sys
 import math
 
 from . import common as c
-from .fourier_table2 import (STAGES, load_text, paper_time, record_shadow_maps,
-                             recorder_contexts, timing_columns)
+from .fourier_table2 import STAGES, load_text, paper_time, recording_filter, timing_columns
 from .tree_speedup import equal_error_time
 
 NAME = "fourier_speedup"
@@ -100,8 +99,7 @@ def shadow_resolution(scene) -> tuple[int, dict]:
     shadow map on this scene (one untimed render); raises if the scene is
     not supported."""
     log = []
-    with record_shadow_maps(log):
-        c.time_renders(scene, {"probe": c.build("fourier_filter")}, repeats=1)
+    c.time_renders(scene, {"probe": recording_filter({}, log)}, repeats=1)
     if not log:
         raise ValueError("fourier_filter rendered no rectified shadow map on this scene")
     return log[-1]["texels"], log[-1]
@@ -126,10 +124,11 @@ def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict
     d, smap = shadow_resolution(scene)
     ref, info = c.exact_reference(path, defines, s["reference_steps"], progress=progress)
     runs = runs_of(s, d)
-    integs = {label: c.build(kind, props) for label, (kind, props, _) in runs.items()}
-    logs, contexts = recorder_contexts([k for k in runs if runs[k][0] == "fourier_filter"])
+    logs = {k: [] for k in runs if runs[k][0] == "fourier_filter"}
+    integs = {label: recording_filter(props, logs[label]) if label in logs else c.build(kind, props)
+              for label, (kind, props, _) in runs.items()}
     load_before = c.load_average()
-    timed = c.time_renders(scene, integs, repeats=repeats, progress=progress, contexts=contexts)
+    timed = c.time_renders(scene, integs, repeats=repeats, progress=progress)
     load_after = c.load_average()
     rows = []
     for label, (kind, props, sweep) in runs.items():

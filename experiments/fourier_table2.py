@@ -56,7 +56,6 @@ from __future__ import annotations
 import sys
 
 import math
-from contextlib import contextmanager
 
 from . import common as c
 
@@ -84,36 +83,49 @@ PAPER_TABLE1 = {1: (1.85, 0.62, 2.47), 2: (1.19, 0.96, 2.15), 3: (1.50, 1.04, 2.
 # Shared by the fourier_* experiments
 # --------------------------------------------------------------------------
 
-@contextmanager
-def record_shadow_maps(log: list):
-    """While active, append ``{"rows", "texels", "filtered_rows"}`` of every
-    rectified shadow map ``fourier_filter`` builds to ``log`` (wraps
-    :func:`integrators.fourier_setup.rectified_shadow_map` as the integrator
-    module sees it; restored on exit).  The map is already evaluated there,
-    so recording costs nothing measurable."""
-    import integrators.fourier_filter as ff
-
-    original = ff.rectified_shadow_map
-
-    def recording(*args, **kwargs):
-        smap = original(*args, **kwargs)
-        log.append({"rows": int(smap.n), "texels": int(smap.d),
-                    "filtered_rows": int(smap.n_filtered)})
-        return smap
-
-    ff.rectified_shadow_map = recording
-    try:
-        yield log
-    finally:
-        ff.rectified_shadow_map = original
+#: ``fourier_filter`` that records its rectified shadow maps (:func:`recording_filter`)
+MAP_PROBE = "fourier_filter_map_probe"
 
 
-def recorder_contexts(labels) -> tuple[dict, dict]:
-    """(logs, contexts) for :func:`experiments.common.time_renders`: one
-    shadow-map log per label, filled on every render of that label."""
-    logs = {label: [] for label in labels}
-    contexts = {label: (lambda log=logs[label]: record_shadow_maps(log)) for label in labels}
-    return logs, contexts
+def _register_probe():
+    import mitsuba as mi
+
+    from integrators.fourier_filter import FourierFilterIntegrator
+
+    class MapProbe(FourierFilterIntegrator):
+        """``fourier_filter`` that appends ``{"rows", "texels",
+        "filtered_rows"}`` of every rectified shadow map it builds to
+        ``self.map_log`` (it overrides the stage method ``rectified_map``;
+        same code, same timers).  The map is already evaluated there, so
+        recording costs nothing measurable."""
+
+        def read_method_properties(self, props):
+            super().read_method_properties(props)
+            self.map_log = []
+
+        def rectified_map(self, queries, rays, beta_b):
+            smap = super().rectified_map(queries, rays, beta_b)
+            self.map_log.append({"rows": int(smap.n), "texels": int(smap.d),
+                                 "filtered_rows": int(smap.n_filtered)})
+            return smap
+
+    mi.register_integrator(MAP_PROBE, lambda props: MapProbe(props))
+
+
+def recording_filter(props: dict, log: list):
+    """A ``fourier_filter`` with ``props`` whose rectified shadow maps are
+    appended to ``log`` as they are built (:data:`MAP_PROBE`)."""
+    _register_probe()
+    integ = c.build(MAP_PROBE, props)
+    integ.map_log = log
+    return integ
+
+
+def recording_filters(runs: dict) -> tuple[dict, dict]:
+    """(integrators, logs): one :func:`recording_filter` and its log per
+    label of ``runs`` (label -> properties)."""
+    logs = {label: [] for label in runs}
+    return {label: recording_filter(props, logs[label]) for label, props in runs.items()}, logs
 
 
 def paper_time(stages: dict) -> float:
@@ -190,10 +202,9 @@ def measure(scene_name: str, s: dict, repeats: int, progress: bool) -> list[dict
     """Every setting of :func:`runs_of` on one scene: times, memory, errors."""
     scene, ref, info = c.scene_with_reference(scene_name, s, progress)
     runs = runs_of(s)
-    integs = {label: c.build("fourier_filter", props) for label, props in runs.items()}
-    logs, contexts = recorder_contexts(runs)
+    integs, logs = recording_filters(runs)
     load_before = c.load_average()
-    timed = c.time_renders(scene, integs, repeats=repeats, progress=progress, contexts=contexts)
+    timed = c.time_renders(scene, integs, repeats=repeats, progress=progress)
     load_after = c.load_average()
     return [{"scene": scene_name, **row_of(label, props, timed[label], logs[label], ref, info,
                                            s, load_before, load_after)}

@@ -56,17 +56,22 @@ def test_table2_grid_is_the_papers():
     assert (s["width"], s["height"]) == (1920, 1080)
 
 
-def test_record_shadow_maps_restores_the_integrator(make_scene):
+def test_recording_filter_logs_its_maps_without_patching(make_scene):
+    """The probe overrides the ``rectified_map`` stage (no module global is
+    replaced) and renders the same image as ``fourier_filter``."""
     import integrators.fourier_filter as ff
     import mitsuba as mi
 
     original = ff.rectified_shadow_map
     log = []
-    with fourier_table2.record_shadow_maps(log):
-        mi.render(make_scene(res=(16, 12)),
-                  integrator=mi.load_dict({"type": "fourier_filter", "light_rays": 40}))
+    scene = make_scene(res=(16, 12))
+    probe = fourier_table2.recording_filter({"light_rays": 40}, log)
+    img = np.array(mi.render(scene, integrator=probe))
     assert ff.rectified_shadow_map is original
     assert log and log[-1]["texels"] == 40 and 0 <= log[-1]["filtered_rows"] <= log[-1]["rows"]
+    plain = np.array(mi.render(scene, integrator=mi.load_dict({"type": "fourier_filter",
+                                                                "light_rays": 40})))
+    assert np.array_equal(img, plain)
 
 
 def test_normalised_relmse_is_scale_free():
