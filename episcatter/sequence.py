@@ -2,8 +2,9 @@
 "Animations").
 
 A :class:`Sequence` owns the frame state (the integrator stays stateless):
-the previous frame's moving-object boxes, camera capture, L_scat per sample
-and camera/light/medium parameters.  For each frame it
+the previous frame's moving-object boxes, camera capture, L_scat per sample,
+camera/light/medium parameters and the method's frame-wide choices.  For
+each frame it
 
 1. poses the moving shapes (:class:`episcatter.motion.ShapeAnimator`);
 2. reads the scene (camera, light, medium);
@@ -14,31 +15,41 @@ and camera/light/medium parameters.  For each frame it
    the camera, light or medium changed
    (:func:`integrators.change_mask.whole_frame_changes`) or on the first
    frame;
-4. captures and computes the dirty samples alone
-   (:func:`integrators.sample_reuse.render_samples`) and keeps the rest
-   (G-buffer and L_scat); there is no periodic refresh;
-5. composes the layers as the render template does.
+4. asks the integrator for those samples through the render template's
+   partial render (``render_layers(samples=mask, moved=boxes)``: the method
+   widens the mask to what it computes together -- per sample for
+   ``raymarch``, per slice for ``epipolar_tree`` -- and to the samples whose
+   shared blockers meet the moved boxes) and keeps the previous frame's
+   values (G-buffer and L_scat) for the others (:func:`merge_frame`); there
+   is no periodic refresh;
+5. checks that the frame-wide choices the method recorded (light-ray
+   count, the kernel's SVD inputs: ``stats["frame_choices"]``) are the
+   previous frame's: else the kept samples were computed with other
+   choices and the frame is rendered again in full;
+6. composes the layers as the render template does.
 
 A reused frame equals a full render of that frame to float rounding (the
-tests check it for every motion and light kind).
+tests check it for every integrator, motion and light kind).
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
+import mitsuba as mi
 import numpy as np
 
-from integrators.capture import capture_camera
-from integrators.change_mask import (ShadowVolumes, TriangleGroups, change_mask,
+from integrators.change_mask import (Boxes, ShadowVolumes, TriangleGroups, change_mask,
                                      frame_invariants, mesh_arrays, shape_boxes,
                                      whole_frame_changes)
-from integrators.sample_reuse import render_samples, reuse_blocker
 from integrators.scene_params import SceneParams
 from integrators.template import compose_layers
 
 from .motion import ShapeAnimator
+
+#: the render template's own stages (the others are the method's, inside ``scattering``)
+TEMPLATE_STAGES = ("validate", "capture", "widen", "scattering", "compose")
 
 
 @dataclass
@@ -59,6 +70,44 @@ class FrameResult:
         return self.recomputed / self.samples
 
 
+@dataclass(frozen=True)
+class FrameState:
+    """What the next frame reuses: the moving boxes, the full capture and
+    L_scat per sample, the camera/light/medium parameters and the method's
+    frame-wide choices."""
+    boxes: list
+    cap: object
+    L_scat: object
+    invariants: dict
+    choices: object
+
+
+def merge_frame(previous: FrameState, result):
+    """``(cap, L_scat)`` of a partial render ``result`` (a
+    :class:`~integrators.template.RenderResult`) completed with the previous
+    frame's values on the samples it did not compute: a subset capture's
+    samples (``capture.sample``) are scattered into the previous capture;
+    a full capture keeps its own G-buffer and takes the previous L_scat
+    outside ``result.samples``."""
+    part, values = result.capture, result.L_scat
+    if result.samples is None:
+        return part, values
+    if part.sample is None:
+        return part, dr.select(result.samples, values, previous.L_scat)
+    idx = part.sample
+
+    def put(old, new):
+        out = type(old)(old)
+        if dr.width(idx):
+            dr.scatter(out, new, idx)
+        return out
+    cap = replace(previous.cap, d=put(previous.cap.d, part.d),
+                  T_cam=put(previous.cap.T_cam, part.T_cam),
+                  L_surface=put(previous.cap.L_surface, part.L_surface),
+                  hit=put(previous.cap.hit, part.hit))
+    return cap, put(previous.L_scat, values)
+
+
 class Sequence:
     """An animation of ``scene`` rendered with ``integrator`` (one of ours).
 
@@ -67,14 +116,14 @@ class Sequence:
     phase); ``reuse``: recompute dirty samples only (False: every frame in
     full, the baseline); ``volume_boxes``: boxes per moving mesh bounding its
     shadow volume (more: a tighter mask); ``keep_mask``: store each frame's
-    mask (NumPy) in its result."""
+    recomputed samples (NumPy) in its result."""
 
     def __init__(self, scene, integrator, motions, frames: int, reuse: bool = True,
                  spp: int = 0, seed: int = 0, volume_boxes: int = 8, keep_mask: bool = False):
         if frames < 1:
             raise ValueError(f"frames = {frames}: render at least one frame.")
         if reuse:
-            why = reuse_blocker(integrator)
+            why = integrator.reuse_refusal()
             if why:
                 raise ValueError(why)
         self.scene, self.integrator, self.frames = scene, integrator, int(frames)
@@ -88,7 +137,7 @@ class Sequence:
             mesh = mesh_arrays(shape) if self.volume_boxes > 1 else None
             if mesh is not None:
                 self.groups[shape.id()] = TriangleGroups.of(mesh[0], mesh[1], self.volume_boxes)
-        self._state = None   # (boxes, d, L_scat, invariants) of the last frame
+        self._state: FrameState | None = None
 
     def moving_boxes(self) -> list:
         """Boxes per moving shape (:class:`integrators.change_mask.Boxes`)."""
@@ -98,10 +147,6 @@ class Sequence:
     def render_frame(self, k: int) -> FrameResult:
         """Pose, mask, compute and compose frame ``k`` (frames are expected
         in order; any order is still exact, only the reuse shrinks)."""
-        with self.integrator.recording(self.seed) as record:
-            return self._render_frame(k, record)
-
-    def _render_frame(self, k: int, record) -> FrameResult:
         integ = self.integrator
         timings: dict[str, float] = {}
 
@@ -109,57 +154,68 @@ class Sequence:
             t0 = time.perf_counter()
             out = fn()
             dr.sync_thread()
-            timings[name] = time.perf_counter() - t0
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
             return out
 
         t_start = time.perf_counter()
         timed("motion", lambda: self.animator.apply(k, self.frames))
-        params = timed("validate", lambda: SceneParams.from_scene(self.scene))
-        jitter = integ.jitters(self.spp)
-
-        def capture(samples):
-            return timed("capture", lambda: capture_camera(
-                params, spp=self.spp, jitter=jitter, seed=self.seed,
-                surface=integ.output == "full", samples=samples))
-
+        params = timed("invariants", lambda: SceneParams.from_scene(self.scene))
         invariants = frame_invariants(params)
         boxes = self.moving_boxes()
         previous = self._state
-        whole = whole_frame_changes(previous[3] if previous else None, invariants)
+        whole = whole_frame_changes(previous.invariants if previous else None, invariants)
         if not self.reuse:
             whole = whole or ["no reuse"]
         mask = None
         if previous is not None and not whole:
             def make_mask():
-                m = change_mask(previous[1], ShadowVolumes.from_sets(previous[0] + boxes, params))
+                m = change_mask(previous.cap, ShadowVolumes.from_sets(previous.boxes + boxes,
+                                                                      params))
                 dr.eval(m)
                 return m
             mask = timed("mask", make_mask)
 
-        def compute():
-            out = render_samples(integ, params, capture, mask,
-                                 previous[1:3] if previous else None)
-            dr.eval(out[1], out[0].d, out[0].T_cam, out[0].L_surface)
-            return out
-        cap, L_scat = timed("scattering", compute)
-        timings["scattering"] -= timings.get("capture", 0.0)
+        def render(samples):
+            result = integ.render_layers(self.scene, seed=self.seed, spp=self.spp,
+                                         samples=samples,
+                                         moved=Boxes.concat(previous.boxes + boxes)
+                                         if samples is not None else None)
+            for name, value in result.timings.items():
+                if name != "total":
+                    key = name if name in TEMPLATE_STAGES else f"scattering.{name}"
+                    timings[key] = timings.get(key, 0.0) + value
+            return result
+
+        result = render(mask)
+        choices = result.stats.get("frame_choices")
+        if mask is not None and choices != previous.choices:
+            whole, mask = ["frame choices"], None          # kept samples are stale
+            result = render(None)
+        cap, L_scat = timed("merge", lambda: self._merge(previous, result))
         n = dr.width(cap.d)
-        mask_np = None if mask is None else np.array(mask)
-        recomputed = n if mask is None else int(np.count_nonzero(mask_np))
+        computed = None if mask is None else result.samples
+        computed_np = None if computed is None else np.array(computed, dtype=bool)
+        recomputed = n if computed is None else int(np.count_nonzero(computed_np))
 
         def compose():
-            layers = compose_layers(cap, L_scat, self.spp)
+            layers = compose_layers(cap, L_scat, self.spp, "mono" in mi.variant())
             dr.eval(*layers.values())
             return layers
-        layers = timed("compose", compose)
-        timings.update({f"scattering.{k2}": v for k2, v in record.timings.items()
-                        if k2 != "scattering"})
+        layers = timed("compose_frame", compose)
         timings["total"] = time.perf_counter() - t_start
-        self._state = (boxes, cap, L_scat, invariants)
+        self._state = FrameState(boxes, cap, L_scat, invariants, choices)
         return FrameResult(index=k, layers={key: np.array(v) for key, v in layers.items()},
                            recomputed=recomputed, samples=n, whole_frame=whole, timings=timings,
-                           mask=(np.ones(n, bool) if mask is None else mask_np)
+                           mask=(np.ones(n, bool) if computed_np is None else computed_np)
                            if self.keep_mask else None)
+
+    @staticmethod
+    def _merge(previous, result):
+        if previous is None or result.samples is None:
+            return result.capture, result.L_scat
+        cap, L_scat = merge_frame(previous, result)
+        dr.eval(cap.d, cap.T_cam, cap.L_surface, cap.hit, L_scat)
+        return cap, L_scat
 
     def __iter__(self):
         for k in range(self.frames):

@@ -11,7 +11,6 @@ brute force (Baran §6), and scatter both back to the camera samples.
 from __future__ import annotations
 
 import drjit as dr
-import mitsuba as mi
 
 from .epipolar_setup import (assign_queries, choose_slices, epipolar_frame_of, march_ring,
                              to_samples)
@@ -61,14 +60,6 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         (hook): Baran's epipolar slices (§3, §8), no plan."""
         frame = epipolar_frame_of(params)
         return frame, choose_slices(frame, self.slices, self.slice_spacing), None
-
-    def widen_samples(self, params, cap, mask):
-        """A partial render computes every camera sample as soon as one is
-        masked: the rows, the light-ray layout and the separated kernel are
-        chosen from all queries of the frame, so a subset of the slices
-        would not reproduce the full render's values.  An empty mask
-        computes nothing."""
-        return dr.full(mi.Bool, dr.any(mask)[0] if dr.width(mask) else False, dr.width(mask))
 
     def scattering(self, params, cap):
         self.check_light(params)

@@ -57,6 +57,25 @@ class RaymarchIntegrator(EpiscatterIntegrator):
             raise ValueError("Property 'march' = 'hybrid' traces exact visibility inside the "
                              "shadow volumes: set visibility='exact' (or march='full').")
 
+    def samples_alone(self, params):
+        """With exact visibility each sample is marched from its own ray
+        alone (the jitter is keyed by the sample's index); a shadow map is
+        fitted to what the whole frame sees."""
+        return self.visibility == "exact"
+
+    def widen_samples(self, params, cap, mask, moved=None):
+        """Per sample: each sample is marched along its own ray (a shadow map
+        is fitted to the whole capture, ``cap.whole()``)."""
+        return mask
+
+    def reuse_refusal(self):
+        if self.visibility != "exact":
+            return ("raymarch with visibility='shadowmap' fits its map to what the whole frame "
+                    "sees and reads it with 2x2 PCF, so an object moving elsewhere changes "
+                    "samples the change mask keeps: use visibility='exact' (march='hybrid' "
+                    "for speed) or reuse=False.")
+        return None
+
     def scattering(self, params, cap):
         shadow_map = None
         if self.visibility == "shadowmap":

@@ -14,8 +14,19 @@ integrator.
 Partial renders: ``render_layers(..., samples=mask)`` computes only the camera
 samples of a boolean mask (index ``pixel*spp + k``, capture order), widened by
 the method's :meth:`EpiscatterIntegrator.widen_samples` hook to what it can
-compute alone; the other samples are 0 in every layer, and
-``RenderResult.samples`` says which samples were computed.
+compute exactly as the full render does; the other samples are 0 in every
+layer, ``RenderResult.samples`` says which samples were computed, and
+``RenderResult.capture`` / ``.L_scat`` hold the computed samples' G-buffer
+and L_scat (an animation keeps the previous frame's values for the others,
+:mod:`episcatter.sequence`).  A method whose samples depend on their own
+rays alone (:meth:`EpiscatterIntegrator.samples_alone`) captures the masked
+samples alone; the others capture the whole frame (their rows, maps and
+kernels are chosen from it) and compute a subset of it
+(:meth:`EpiscatterIntegrator.partial_scattering`).  ``moved``: boxes
+(:class:`integrators.change_mask.Boxes`) bounding the scene objects that
+moved since the frame whose values the caller keeps: a method that shares
+blockers between samples (a slice's light rays) widens the mask to the
+samples whose shared blockers meet them.
 
 Common properties (every method):
 
@@ -95,11 +106,16 @@ class RenderResult(Mapping):
     """One render: ``layers`` (name -> TensorXf; the result is also a mapping
     of them), ``timings`` (stage -> seconds), ``stats`` (what the method
     recorded), ``samples`` (mi.Bool over the camera samples that were
-    computed; None: all of them)."""
+    computed; None: all of them), ``capture`` (the camera capture that was
+    computed: all samples, or a subset capture of the computed ones,
+    ``capture.sample`` their indices) and ``L_scat`` (per sample of
+    ``capture``; 0 on samples of a full capture that were not computed)."""
     layers: dict
     timings: dict
     stats: dict
     samples: object = None
+    capture: object = None
+    L_scat: object = None
 
     def __getitem__(self, name):
         return self.layers[name]
@@ -205,8 +221,9 @@ def develop_into_film(film, layers: dict, output: str, aovs: list) -> None:
 
 
 def pixel_average(values, pixel, n_pixels, spp):
-    """Box filter: mean of each pixel's ``spp`` consecutive samples."""
-    if spp == 1:
+    """Box filter: mean of each pixel's ``spp`` samples (``pixel``: each
+    value's pixel; a subset capture's values leave the other pixels 0)."""
+    if spp == 1 and dr.width(values) == n_pixels:
         return values
     out = dr.zeros(type(values), n_pixels)
     dr.scatter_reduce(dr.ReduceOp.Add, out, values, pixel)
@@ -258,9 +275,20 @@ def sample_mask(samples, count: int) -> mi.Bool:
     return samples
 
 
+def empty_capture(params, spp: int) -> CameraCapture:
+    """The capture of no camera sample (a partial render of an empty mask)."""
+    u, f = dr.zeros(mi.UInt32, 0), dr.zeros(mi.Float, 0)
+    c = dr.zeros(mi.Color3f, 0)
+    return CameraCapture(width=params.camera.width, height=params.camera.height, spp=spp,
+                         pixel=u, o=dr.zeros(mi.Point3f, 0), omega=dr.zeros(mi.Vector3f, 0),
+                         d=f, T_cam=c, L_surface=mi.Color3f(c), hit=dr.zeros(mi.Bool, 0),
+                         sample=mi.UInt32(u))
+
+
 def masked_scattering(scattering, params, cap, computed: mi.Bool):
     """L_scat of the ``computed`` samples of ``cap`` (0 elsewhere): the
-    method's ``scattering`` runs on the subset capture alone."""
+    method's ``scattering`` runs on the subset capture alone (which keeps
+    the full one as ``parent`` for frame-wide choices)."""
     index = dr.compress(computed)
     out = dr.zeros(mi.Color3f, cap.count)
     if dr.width(index):
@@ -296,11 +324,42 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         """L_scat per camera sample of ``cap`` (hook)."""
         raise NotImplementedError
 
-    def widen_samples(self, params: SceneParams, cap: CameraCapture, mask: mi.Bool) -> mi.Bool:
+    def widen_samples(self, params: SceneParams, cap: CameraCapture, mask: mi.Bool,
+                      moved=None) -> mi.Bool:
         """The camera samples to compute for a partial render of ``mask``
         (hook): the smallest superset the method computes exactly as in a
-        full render.  Default: ``mask`` itself (per-sample methods)."""
-        return mask
+        full render, plus -- given the boxes ``moved`` of what moved -- the
+        samples whose shared inputs those boxes can change.  Default: every
+        sample as soon as one is masked (a method that chooses anything from
+        the whole frame); an empty mask computes nothing.  Per-sample
+        methods return ``mask`` itself."""
+        return dr.full(mi.Bool, dr.any(mask)[0] if dr.width(mask) else False, dr.width(mask))
+
+    def partial_scattering(self, params: SceneParams, cap: CameraCapture, mask: mi.Bool,
+                           moved=None):
+        """``(L_scat, computed)`` of a partial render of ``mask`` on the full
+        capture ``cap`` (hook): ``computed`` = :meth:`widen_samples`, L_scat
+        of those samples (0 elsewhere).  Default: the method's
+        :meth:`scattering` on the subset capture of ``computed``."""
+        with self.stage("widen") as keep:
+            computed = self.widen_samples(params, cap, mask, moved)
+            keep.append(computed)
+        with self.stage("scattering") as keep:
+            L_scat = masked_scattering(self.scattering, params, cap, computed)
+            keep.append(L_scat)
+        return L_scat, computed
+
+    def samples_alone(self, params: SceneParams) -> bool:
+        """Whether each camera sample's L_scat depends on its own ray alone,
+        with nothing chosen from the whole frame (hook): a partial render
+        then captures the masked samples alone.  Default: False."""
+        return False
+
+    def reuse_refusal(self) -> str | None:
+        """Why an animation cannot keep this method's samples between frames
+        (a sentence naming the fix), or None (hook; default None: a partial
+        render equals the full render on its computed samples)."""
+        return None
 
     # -- per-render record and timing --------------------------------------------
     @property
@@ -373,12 +432,15 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         raise NotImplementedError(NO_DERIVATIVES.format(type(self).__name__))
 
     # -- the template -------------------------------------------------------------
-    def render_layers(self, scene, sensor=0, seed=0, spp=0, samples=None) -> RenderResult:
+    def render_layers(self, scene, sensor=0, seed=0, spp=0, samples=None,
+                      moved=None) -> RenderResult:
         """Every layer of one render (see the module doc; ``samples``: an
-        optional boolean mask over the camera samples, mi.Bool or NumPy)."""
+        optional boolean mask over the camera samples, mi.Bool or NumPy;
+        ``moved``: boxes of what moved, for a partial render)."""
         variant = check_variant()
         with self.recording(seed) as record:
-            return self._render_layers(scene, sensor, record.seed, spp, samples, record, variant)
+            return self._render_layers(scene, sensor, record.seed, spp, samples, moved, record,
+                                       variant)
 
     @contextmanager
     def recording(self, seed=0):
@@ -393,33 +455,40 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         finally:
             _RECORD.reset(token)
 
-    def _render_layers(self, scene, sensor, seed, spp, samples, record, variant):
+    def _render_layers(self, scene, sensor, seed, spp, samples, moved, record, variant):
         t_start = time.perf_counter()
         with self.stage("validate"):
             params = SceneParams.from_scene(scene, sensor)
         spp = self.sample_count(scene, sensor, spp)
         jitter = self.jitters(spp)
+        mask = None
+        if samples is not None:
+            cam = params.camera
+            mask = sample_mask(samples, cam.width * cam.height * spp)
+        alone = mask is not None and self.samples_alone(params)
         with self.stage("capture") as keep:
-            cap = capture_camera(params, spp=spp, jitter=bool(jitter), seed=int(seed),
-                                 surface=self.output == "full")
+            index = dr.compress(mask) if alone else None
+            cap = (empty_capture(params, spp) if alone and not dr.width(index) else
+                   capture_camera(params, spp=spp, jitter=bool(jitter), seed=int(seed),
+                                  surface=self.output == "full", samples=index))
             keep.append(cap.d)
         computed = None
-        if samples is not None:
-            with self.stage("widen") as keep:
-                computed = self.widen_samples(params, cap, sample_mask(samples, cap.count))
-                keep.append(computed)
-        with self.stage("scattering") as keep:
-            if computed is None:
-                L_scat = self.scattering(params, cap)
-            else:
-                L_scat = masked_scattering(self.scattering, params, cap, computed)
-            keep.append(L_scat)
+        if mask is None or alone:
+            with self.stage("scattering") as keep:
+                L_scat = (self.scattering(params, cap) if cap.count
+                          else dr.zeros(mi.Color3f, 0))
+                keep.append(L_scat)
+            computed = mask
+        else:
+            L_scat, computed = self.partial_scattering(params, cap, mask, moved)
         with self.stage("compose") as keep:
-            layers = compose_layers(cap, L_scat, spp, "mono" in variant, computed)
+            layers = compose_layers(cap, L_scat, spp, "mono" in variant,
+                                    None if alone else computed)
             keep.extend(layers.values())
         record.timings["total"] = time.perf_counter() - t_start
         return RenderResult(layers=layers, timings=dict(record.timings),
-                            stats=dict(record.stats), samples=computed)
+                            stats=dict(record.stats), samples=computed, capture=cap,
+                            L_scat=L_scat)
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if not develop:

@@ -3,10 +3,13 @@ samples are computed, they equal the full render's (to float rounding), the
 others are 0, and ``RenderResult.samples`` says which were computed."""
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
+from integrators.capture import capture_camera
+from integrators.scene_params import SceneParams
 from tests.conftest import scene_dict
 
 RES = (20, 15)
@@ -69,3 +72,27 @@ def test_render_state_lives_in_the_result():
         assert not hasattr(integ, name), name
     integ.record(x=1)                      # outside a render: a detached record
     assert "x" not in integ.render_layers(scene).stats
+
+
+def test_subset_capture_equals_the_full_capture_there():
+    params = SceneParams.from_scene(mi.load_dict(scene_dict(res=(12, 9))))
+    full = capture_camera(params, spp=4, jitter=True, seed=3)
+    idx = mi.UInt32(np.array([0, 5, 17, 100, 431], dtype=np.uint32))
+    part = capture_camera(params, spp=4, jitter=True, seed=3, samples=idx)
+    for name in ("pixel", "o", "omega", "d", "T_cam", "L_surface", "hit"):
+        a, b = getattr(full, name), getattr(part, name)
+        np.testing.assert_array_equal(np.array(dr.gather(type(a), a, idx)), np.array(b), err_msg=name)
+
+
+def test_per_sample_methods_capture_the_masked_samples_alone():
+    """raymarch with exact visibility: the partial render's capture holds
+    the masked samples alone, with their full-render values."""
+    scene = mi.load_dict(scene_dict(res=(12, 9)))
+    integ = mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 16})
+    mask = mask_of(108, 0.3)
+    full = integ.render_layers(scene)
+    part = integ.render_layers(scene, samples=mask)
+    assert part.capture.count == mask.sum()
+    np.testing.assert_array_equal(np.array(part.capture.sample), np.flatnonzero(mask))
+    np.testing.assert_allclose(np.array(part.L_scat),
+                               np.array(full.L_scat)[:, mask], rtol=1e-6, atol=1e-9)
