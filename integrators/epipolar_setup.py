@@ -103,7 +103,7 @@ from rectify.coords import (direction_to_alpha_beta, light_coords_to_world, ray_
 from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, alpha_to_slice, make_slices
 
-from .capture import CameraCapture
+from .capture import CameraCapture, sample_rng, seed_offset
 from .light_transport import (slabs, color, first_blocker, phase_eval, point,
                               sample_light, segment_box, segment_weight, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
@@ -409,6 +409,9 @@ class LightRays(EqualLightRays):
     h: mi.Float | None = None       # (n·d,) axial exit coordinate h(α, γ) at each centre
     h_ref: mi.Float | None = None   # (n,) smallest h of the row's rays that meet the box
     gamma_lo: mi.Float | None = None   # (n,) start of the rows' light rays; None: 0
+    #: (n,) the rows' numbers in the whole frame when these are some of its
+    #: rows (a partial render, :mod:`integrators.row_subset`); None: 0..n-1
+    row_id: mi.UInt32 | None = None
 
 
 def row_gamma_end(queries: EpipolarQueries, floor: float) -> mi.Float:
@@ -514,13 +517,18 @@ def rectified_depth(queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
 def sub_ray_gamma(rays: LightRays, k: int, seed: int):
     """(row, γ) of ``k`` stratified jittered sub-rays per light ray (§7),
     (n·d·k,) lanes in (row, light ray, sub-ray) order; ``k = 1``: the light
-    ray's centre."""
+    ray's centre.  A sub-ray's random numbers are keyed by its lane in the
+    whole frame (``rays.row_id``), so a subset of the rows draws the full
+    render's."""
     s, g, m = rays.lanes(k)
     if k == 1:
         xi = mi.Float(0.5)
     else:
         n = dr.width(s)
-        rng = mi.PCG32(size=n, initstate=dr.arange(mi.UInt64, n) + 0x2545F4914F6CDD1D * (seed + 1))
+        row_id = getattr(rays, "row_id", None)
+        lane = (dr.arange(mi.UInt32, n) if row_id is None else
+                (dr.gather(mi.UInt32, row_id, s) * rays.d + g) * k + m)
+        rng = sample_rng(lane, seed_offset(seed, 0x2545F4914F6CDD1D))
         xi = (mi.Float(m) + rng.next_float32()) / k
     return s, rays.start(s) + (mi.Float(g) + xi) * dr.gather(mi.Float, rays.delta_gamma, s)
 
