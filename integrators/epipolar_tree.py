@@ -18,6 +18,7 @@ from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibil
                              rectified_depth, sweep_magnitude)
 from .light_models import light_model
 from .partial_sum_tree import integrate_slices
+from .row_subset import frame_choices, take_light_rays, take_rows, whole_queries
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
 
@@ -32,6 +33,12 @@ class LightSide:
     colour: object
     lit: object
     D: mi.TensorXf
+
+    def of_rows(self, queries) -> "LightSide":
+        """The light side of the rows of ``queries`` (a
+        :class:`~integrators.row_subset.RowSubset`; a whole frame: itself)."""
+        return LightSide(take_light_rays(queries, self.rays), take_rows(queries, self.L),
+                         self.colour, take_rows(queries, self.lit), take_rows(queries, self.D))
 
 
 class EpipolarTreeIntegrator(EpipolarIntegrator):
@@ -152,6 +159,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     """
 
     SLICE_INTERPOLATION = True
+    ROW_SUBSETS = True
 
     def read_method_properties(self, props):
         self.prefilter = read_number(props, "prefilter", 4, minimum=1, maximum=16, integer=True)
@@ -176,12 +184,18 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         ``stats["last_interval_traced"]``: how many of its
         ``stats["query_count"]`` queries traced them."""
         model = light_model(params)
-        side = self.light_side(params, cap, queries, model)
-        modes = self.blocker_stage(params, cap, queries, side)
+        # frame-wide choices on the whole frame's queries, then the rows of
+        # ``queries`` (all of them, or a partial render's RowSubset)
+        whole = whole_queries(queries)
+        side = self.light_side(params, cap, whole, model)
         with self.stage("svd") as keep:
-            A, B = model.separated_kernel(params, queries, side.rays, self.svd_rank,
+            A, B = model.separated_kernel(params, whole, side.rays, self.svd_rank,
                                           self.svd_tolerance)
             keep.extend([A, B])
+        self.record(frame_choices=frame_choices(whole, side.rays))
+        side = side.of_rows(queries)
+        A, B = take_rows(queries, A), take_rows(queries, B)
+        modes = self.blocker_stage(params, cap, queries, side)
         rays, L, D = side.rays, side.L, side.D
         with self.stage("sweep") as keep:
             integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count),
