@@ -7,14 +7,24 @@ sample becomes a query of its nearest slice, Baran §3/§8, or of both
 neighbouring slices, weighted by its position between them), let the method
 answer the queries (:meth:`integrate_queries`), march the epipole ring by
 brute force (Baran §6), and scatter both back to the camera samples.
+
+Partial renders (the template's sample mask, temporal reuse): a method
+whose :meth:`EpipolarIntegrator.integrate_queries` takes a subset of the
+rows (``ROW_SUBSETS``) computes only the rows that hold a masked sample or
+whose light rays can meet what moved, with the frame-wide choices made on
+the whole frame (:mod:`integrators.row_subset`), and writes only the samples
+those rows determine; the others compute the whole frame when any sample
+is masked.
 """
 from __future__ import annotations
 
 import drjit as dr
+import mitsuba as mi
 
 from .epipolar_setup import (assign_queries, choose_slices, epipolar_frame_of, march_ring,
                              to_samples)
 from .integrand_svd import SAMPLES
+from .row_subset import dirty_rows, moved_rows, restrict_queries
 from .template import EpiscatterIntegrator, read_bool, read_number
 
 
@@ -25,6 +35,10 @@ class EpipolarIntegrator(EpiscatterIntegrator):
     #: default of ``slice_interpolation`` (each camera sample shared by its
     #: two neighbouring slices instead of answered by the nearest one)
     SLICE_INTERPOLATION = False
+    #: whether :meth:`integrate_queries` answers a
+    #: :class:`~integrators.row_subset.RowSubset` of the rows exactly as the
+    #: whole frame's render does (per-slice partial renders)
+    ROW_SUBSETS = False
 
     def read_properties(self, props):
         self.slices = read_number(props, "slices", 0, minimum=0, maximum=1 << 20, integer=True)
@@ -61,12 +75,49 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         frame = epipolar_frame_of(params)
         return frame, choose_slices(frame, self.slices, self.slice_spacing), None
 
-    def scattering(self, params, cap):
-        self.check_light(params)
+    def rectify(self, params, cap):
+        """Stage ``rectify``: (queries, plan) of the whole frame -- the rows
+        (:meth:`choose_rows`) and every camera sample as their queries."""
         with self.stage("rectify"):
             frame, slices, plan = self.choose_rows(params, cap)
             queries = assign_queries(params, frame, slices, cap, self.ring_degrees,
                                      interpolate=self.slice_interpolation)
+        return queries, plan
+
+    def widen_samples(self, params, cap, mask, moved=None):
+        """Per slice (``ROW_SUBSETS``): every sample of a row that holds a
+        masked sample or whose slice meets a ``moved`` box
+        (:func:`~integrators.row_subset.dirty_rows`); else the whole frame."""
+        if not self.ROW_SUBSETS:
+            return super().widen_samples(params, cap, mask, moved)
+        queries, _ = self.rectify(params, cap)
+        return dirty_rows(queries, mask, moved_rows(queries, moved))[1]
+
+    def partial_scattering(self, params, cap, mask, moved=None):
+        if not self.ROW_SUBSETS:
+            return super().partial_scattering(params, cap, mask, moved)
+        with self.stage("scattering") as keep:
+            self.check_light(params)
+            queries, plan = self.rectify(params, cap)
+            with self.stage("widen") as keep_w:
+                rows, computed = dirty_rows(queries, mask, moved_rows(queries, moved))
+                ring = dr.compress(dr.gather(mi.Bool, computed, queries.ring_sample))
+                sub = restrict_queries(queries, rows, dr.gather(mi.UInt32, queries.ring_sample,
+                                                                 ring))
+                keep_w.append(computed)
+            L_scat = dr.select(computed, self.integrate_rows(params, cap, sub, plan), 0.0)
+            keep.append(L_scat)
+        self.record(rows_computed=sub.n, rows=queries.n)
+        return L_scat, computed
+
+    def scattering(self, params, cap):
+        self.check_light(params)
+        queries, plan = self.rectify(params, cap)
+        return self.integrate_rows(params, cap, queries, plan)
+
+    def integrate_rows(self, params, cap, queries, plan=None):
+        """L_scat per camera sample of ``queries`` (a whole frame's, or a
+        :class:`~integrators.row_subset.RowSubset`) and of its ring samples."""
         parts = []
         if queries.n:
             values = self.integrate_queries(params, cap, queries, plan)
