@@ -187,7 +187,10 @@ class Sequence:
             return result
 
         result = render(mask)
-        choices = result.stats.get("frame_choices")
+        # a partial render that computed no row records no choices: nothing
+        # it depends on changed, so the previous frame's stand
+        choices = result.stats.get("frame_choices",
+                                   previous.choices if mask is not None else None)
         if mask is not None and choices != previous.choices:
             whole, mask = ["frame choices"], None          # kept samples are stale
             result = render(None)

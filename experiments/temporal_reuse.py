@@ -3,13 +3,15 @@ speedup over the plain one on the suite (issue 15, points 3 and 4).
 
 1. ``nave_swing`` (:func:`scenes.temporal.nave_swing`: ``nave_offscreen``
    with a box swinging like a pendulum through the sun shafts), 1280×960,
-   one camera sample per pixel: ``raymarch visibility=exact`` re-rendering every frame against reuse on top of it
+   one camera sample per pixel: ``epipolar_tree`` (defaults; per-slice
+   reuse) and ``raymarch visibility=exact`` (per-sample reuse), each
+   re-rendering every frame against reuse on top of it
    (:mod:`experiments.sequence_runs`: same process, frames alternately,
    two-frame warm-up apart).  Reported: speedup over full re-rendering, the
    recomputed fraction (the share of the screen the object and its shadow
    volumes cover, previous and current frame), every reused frame's
    largest difference from its re-render.  Target: ≥ 3× where the fraction
-   is ≤ 20 %.  ``epipolar_tree`` reuse waits for the template's sample mask.
+   is ≤ 20 %.
 2. ``march=hybrid`` against ``march=full`` (both exact visibility, same
    steps) on every suite scene, 320×240: the hybrid traces the same rays
    where a ray can be shadowed and skips the rest, so its image equals the
@@ -38,7 +40,10 @@ NAME = "temporal_reuse"
 def settings_for(quick: bool) -> dict:
     return {"reuse_resolution": [160, 120] if quick else [1280, 960],
             "frames": 3 if quick else 5, "steps": 16 if quick else 64,
-            "marches": ["full"], "volume_boxes": 8,
+            "methods": [["epipolar_tree", {}],
+                        ["raymarch", {"visibility": "exact", "march": "full",
+                                      "steps": 16 if quick else 64}]],
+            "volume_boxes": 8,
             "motion": NAVE_SWING_MOTION,
             "hybrid_resolution": [80, 60] if quick else [320, 240],
             "hybrid_scenes": ["nave_offscreen", "point_fog"] if quick else sorted(catalog.SCENES),
@@ -49,15 +54,14 @@ def settings_for(quick: bool) -> dict:
 def reuse_part(s, out):
     path = str(write_nave_swing())
     summaries, frames = [], []
-    for march in s["marches"]:
-        props = {"visibility": "exact", "march": march, "steps": s["steps"]}
-        print(f"nave_swing, march={march}, {s['reuse_resolution']}, load {c.load_average()}",
+    for kind, props in s["methods"]:
+        print(f"nave_swing, {kind} {props}, {s['reuse_resolution']}, load {c.load_average()}",
               flush=True)
-        rows, warm = paired_sequences(path, c.resolution(*s["reuse_resolution"]), "raymarch",
+        rows, warm = paired_sequences(path, c.resolution(*s["reuse_resolution"]), kind,
                                       props, [s["motion"]], s["frames"], s["volume_boxes"])
-        frames += [{"march": march, **r} for r in rows]
-        summaries.append({"march": march, "warmup_pair_s": warm, **summary(rows),
-                          "load_average": c.load_average()})
+        frames += [{"method": kind, **r} for r in rows]
+        summaries.append({"method": kind, "props": repr(props), "warmup_pair_s": warm,
+                          **summary(rows), "load_average": c.load_average()})
     c.write_csv(out / "reuse_summary.csv", summaries)
     c.write_csv(out / "reuse_frames.csv", frames)
     return summaries, frames
@@ -96,10 +100,10 @@ def main(argv=None) -> int:
     hybrid = hybrid_part(s, out) if not args.skip_hybrid else []
     c.write_json(out / f"{NAME}.json", s, reuse, frames=frames, hybrid=hybrid)
     text = [f"Temporal reuse, nave_swing {s['reuse_resolution'][0]}x{s['reuse_resolution'][1]}, "
-            f"{s['frames']} frames, raymarch exact, steps {s['steps']} ({s['convention']})", "",
-            c.markdown_table(["march", "full fps", "reuse fps", "speedup (reused frames)",
+            f"{s['frames']} frames ({s['convention']})", "",
+            c.markdown_table(["method", "full fps", "reuse fps", "speedup (reused frames)",
                               "speedup (all frames)", "mean recomputed", "max diff/peak"],
-                             [[r["march"], c.fmt(r["fps_full"]), c.fmt(r["fps_reuse"]),
+                             [[r["method"], c.fmt(r["fps_full"]), c.fmt(r["fps_reuse"]),
                                c.fmt(r["speedup_reused_frames"]), c.fmt(r["speedup_all_frames"]),
                                c.fmt(r["mean_recomputed_fraction"]),
                                c.fmt(r["max_diff_over_peak"])] for r in reuse]), "",

@@ -121,37 +121,50 @@ def take_light_rays(queries: EpipolarQueries, rays):
     return replace(rays, **values, row_id=mi.UInt32(queries.rows))
 
 
-def _extent(x) -> tuple | None:
-    """(min, max) of the finite entries of a Dr.Jit array (None if none)."""
+def _finite_min(x) -> float | None:
     v = mi.Float(x)
     finite = dr.isfinite(v)
     if not dr.width(v) or not dr.any(finite)[0]:
         return None
-    return (float(dr.min(dr.select(finite, v, dr.inf))[0]),
-            float(dr.max(dr.select(finite, v, -dr.inf))[0]))
+    return float(dr.min(dr.select(finite, v, dr.inf))[0])
+
+
+def _finite_max(x) -> float | None:
+    low = _finite_min(-mi.Float(x))
+    return None if low is None else -low
 
 
 def frame_choices(queries: EpipolarQueries, rays) -> tuple:
-    """A summary of the frame-wide choices of an epipolar render, equal for
-    two frames whose choices are equal: the rows (count and slices), the
-    light-ray count, the extent (min, max) of every field of the light
-    rays (row ranges γ, spacings, box exits, lattice offsets) and of the
-    queries' β and end points.  The light-ray count, the spot lattice and
-    the SVD's sample grid and tolerance are functions of these extents
+    """What the frame-wide choices of an epipolar render are made from, equal
+    for two frames whose choices are equal: the rows (count and slices, whose
+    numbering keys the sub-rays' jitter), the light-ray count ``d``, whether
+    samples are shared by two slices (the adaptive sub-rays' threshold,
+    :func:`~integrators.epipolar_setup._smooth_intervals`), and the inputs of
+    the separated kernel's SVD grid, tolerance and tables
     (:func:`~integrators.kernel_separation.separated_kernel`,
-    :func:`~integrators.epipolar_local_light.local_separated_kernel`), so
-    equal summaries mean equal kernels; a change of a row that is not an
-    extreme leaves the summary alone (conservative the other way: a frame
-    whose summary changed is rendered in full)."""
+    :func:`~integrators.epipolar_local_light.local_separated_kernel`): the
+    queries' β range, the largest γ of the light rays, and the light-side
+    gain's lowest path (:func:`~integrators.epipolar_setup.light_side_gains`,
+    clipped at 0 as it is); for point/spot lights also the lattice (its
+    spacing, first cell and size) and the largest tan(β/2)·tan(γ_end/2).
+    Everything else a row uses is its own.  Equal summaries mean equal
+    choices; the caller renders a frame whose summary changed in full."""
+    def low(x):
+        m = _finite_min(x)
+        return None if m is None else min(m, 0.0)
+    local = getattr(rays, "r_in", None) is not None
     out = [("rows", queries.n, int(dr.sum(mi.UInt64(queries.slice_index))[0]) if queries.n else 0),
-           ("d", rays.d), ("shared", queries.shares > 1.0)]
-    for f in fields(rays):
-        v = getattr(rays, f.name)
-        if dr.is_array_v(v) and f.name != "row_id":
-            out.append((f.name, _extent(v)))
-    x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
-    out += [("beta", _extent(queries.beta)), ("gamma_end", _extent(queries.gamma_end)),
-            ("x", _extent(x))]
+           ("d", rays.d), ("shared", math.ceil(queries.shares - 1e-6)),
+           ("beta", _finite_min(queries.beta), _finite_max(queries.beta)),
+           ("gamma_max", _finite_max(rays.gamma_max))]
+    if local:
+        x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
+        out += [("lattice", _finite_max(rays.delta_gamma), _finite_min(rays.gamma_lo),
+                 int(dr.max(rays.offset)[0])),
+                ("x_max", _finite_max(x)),
+                ("light_side", low(float(queries.frame.light_distance) - rays.r_in))]
+    else:
+        out += [("light_side", low(rays.h))]
     return tuple(out)
 
 
