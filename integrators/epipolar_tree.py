@@ -167,6 +167,14 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                          ("traced", "resampled"))
         self.adaptive_prefilter = read_bool(props, "adaptive_prefilter", True)
 
+    def reuse_refusal(self):
+        if self.rectification == "resampled":
+            return ("epipolar_tree with rectification='resampled' reads its blockers from a "
+                    "shadow map fitted to what the whole frame sees, so an object moving "
+                    "elsewhere changes slices the reuse keeps: use rectification='traced' "
+                    "(the default) or reuse=False.")
+        return None
+
     # -- the method ---------------------------------------------------------------
     def integrate_queries(self, params, cap, queries, plan=None):
         return self.sweep_queries(params, cap, queries)
