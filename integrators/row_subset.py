@@ -215,17 +215,23 @@ def in_arcs(alpha, arcs: list | None, margin: float = ARC_MARGIN) -> np.ndarray:
     return out
 
 
-def slice_meets_boxes_reference(frame, alpha: float, boxes, samples: int = 64) -> bool:
+def slice_meets_boxes_reference(frame, alpha: float, boxes, samples: int = 200) -> bool:
     """Slow NumPy twin of :func:`slice_arcs` for one slice: does the
-    half-plane α meet a box?  Dense points of every box, each tested by its
-    own α (to within the spacing of the points)."""
+    half-plane α (the points ``eye + u·axis + γ·e(α)``, γ ≥ 0, e(α) =
+    cos α·b1 + sin α·b2) meet a box?  A dense (u, γ) grid over the boxes'
+    reach, each point tested against every box (misses intersections
+    thinner than the grid spacing)."""
     eye = np.asarray(frame.camera.origin, np.float64)
-    t = (np.arange(samples) + 0.5) / samples
-    g = np.stack(np.meshgrid(t, t, t, indexing="ij"), -1).reshape(-1, 3)
-    step = 2 * np.pi / samples
-    for lo, hi in zip(np.asarray(boxes.lo), np.asarray(boxes.hi)):
-        a, _ = direction_to_alpha_beta_reference(frame, lo + g * (hi - lo) - eye)
-        if np.any(np.abs(np.angle(np.exp(1j * (a - alpha)))) < step):
+    axis = np.asarray(frame.axis, np.float64)
+    e = np.cos(alpha) * np.asarray(frame.b1) + np.sin(alpha) * np.asarray(frame.b2)
+    lo, hi = np.asarray(boxes.lo, np.float64), np.asarray(boxes.hi, np.float64)
+    reach = float(np.max(np.linalg.norm(np.concatenate([lo, hi]) - eye, axis=1)))
+    u = np.linspace(-reach, reach, samples)
+    g = np.linspace(0.0, reach, samples)
+    p = eye + u[:, None, None] * axis + g[None, :, None] * e            # (u, γ, 3)
+    p = p.reshape(-1, 3)
+    for b_lo, b_hi in zip(lo, hi):
+        if np.any(np.all((p >= b_lo) & (p <= b_hi), axis=1)):
             return True
     return False
 

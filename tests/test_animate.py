@@ -33,6 +33,16 @@ def test_animate_writes_frames_csv_and_gif(tmp_path, capsys):
     assert "fps" in capsys.readouterr().out
 
 
+def test_animate_reuses_slices_of_epipolar_tree(tmp_path):
+    xml = write_table1(tmp_path, triangles=(2000,))[0]
+    out = tmp_path / "tree"
+    assert main(["animate", str(xml), "-i", "epipolar_tree", "-D", "res_x=32", "-D", "res_y=32",
+                 "--frames", "2", "--move", TABLE1_MOTION, "-o", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "frames.csv")))
+    assert float(rows[1]["recomputed_fraction"]) < 1 and rows[1]["whole_frame"] == ""
+    assert "stage_widen_s" in rows[1] and "stage_scattering.sweep_s" in rows[1]
+
+
 def test_animate_names_a_missing_move(tmp_path, capsys):
     xml = write_table1(tmp_path, triangles=(2000,))[0]
     assert main(["animate", str(xml), "--frames", "2", "-o", str(tmp_path / "a")]) == 2
