@@ -23,6 +23,8 @@ def test_temporal_table1_quick(tmp_path):
     doc = json.loads((tmp_path / "temporal_table1.json").read_text())
     row = doc["rows"][0]
     assert row["max_diff_over_peak"] < 1e-6 and row["mean_recomputed_fraction"] < 1
+    side = doc["settings"]["resolution"]
+    assert all(f["samples"] == side[0] * side[1] for f in doc["frames"])   # 1 spp, as it says
     assert (tmp_path / "table.md").is_file() and (tmp_path / "fraction.png").is_file()
 
 
@@ -32,3 +34,6 @@ def test_temporal_reuse_quick(tmp_path):
     doc = json.loads((tmp_path / "temporal_reuse.json").read_text())
     assert doc["rows"][0]["max_diff_over_peak"] < 1e-6
     assert all(r["max_diff_over_peak"] < 1e-6 for r in doc["hybrid"])
+    w, h = doc["settings"]["reuse_resolution"]
+    assert all(f["samples"] == w * h for f in doc["frames"])   # 1 spp, as it says
+    assert {r["method"] for r in doc["rows"]} == {"epipolar_tree", "raymarch"}
