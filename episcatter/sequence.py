@@ -19,9 +19,10 @@ each frame it
    partial render (``render_layers(samples=mask, moved=boxes)``: the method
    widens the mask to what it computes together -- per sample for
    ``raymarch``, per slice for ``epipolar_tree`` -- and to the samples whose
-   shared blockers meet the moved boxes) and keeps the previous frame's
-   values (G-buffer and L_scat) for the others (:func:`merge_frame`); there
-   is no periodic refresh;
+   shared blockers meet the moved boxes; only the dirty samples are
+   captured anew, ``known=`` the last capture) and keeps the previous
+   frame's values (G-buffer and L_scat) for the others
+   (:func:`merge_frame`); there is no periodic refresh;
 5. checks that the frame-wide choices the method recorded (light-ray
    count, the kernel's SVD inputs: ``stats["frame_choices"]``) are the
    previous frame's: else the kept samples were computed with other
@@ -34,7 +35,7 @@ tests check it for every integrator, motion and light kind).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
@@ -44,7 +45,7 @@ from integrators.change_mask import (Boxes, ShadowVolumes, TriangleGroups, chang
                                      frame_invariants, mesh_arrays, shape_boxes,
                                      whole_frame_changes)
 from integrators.scene_params import SceneParams
-from integrators.template import compose_layers
+from integrators.template import compose_layers, merge_capture
 
 from .motion import ShapeAnimator
 
@@ -86,26 +87,18 @@ def merge_frame(previous: FrameState, result):
     """``(cap, L_scat)`` of a partial render ``result`` (a
     :class:`~integrators.template.RenderResult`) completed with the previous
     frame's values on the samples it did not compute: a subset capture's
-    samples (``capture.sample``) are scattered into the previous capture;
-    a full capture keeps its own G-buffer and takes the previous L_scat
-    outside ``result.samples``."""
+    samples (``capture.sample``) are scattered into the previous capture
+    (:func:`~integrators.template.merge_capture`); a full capture is this
+    frame's and takes the previous L_scat outside ``result.samples``."""
     part, values = result.capture, result.L_scat
     if result.samples is None:
         return part, values
     if part.sample is None:
         return part, dr.select(result.samples, values, previous.L_scat)
-    idx = part.sample
-
-    def put(old, new):
-        out = type(old)(old)
-        if dr.width(idx):
-            dr.scatter(out, new, idx)
-        return out
-    cap = replace(previous.cap, d=put(previous.cap.d, part.d),
-                  T_cam=put(previous.cap.T_cam, part.T_cam),
-                  L_surface=put(previous.cap.L_surface, part.L_surface),
-                  hit=put(previous.cap.hit, part.hit))
-    return cap, put(previous.L_scat, values)
+    L_scat = type(previous.L_scat)(previous.L_scat)
+    if dr.width(part.sample):
+        dr.scatter(L_scat, values, part.sample)
+    return merge_capture(previous.cap, part), L_scat
 
 
 class Sequence:
@@ -176,10 +169,12 @@ class Sequence:
             mask = timed("mask", make_mask)
 
         def render(samples):
+            partial = samples is not None
             result = integ.render_layers(self.scene, seed=self.seed, spp=self.spp,
                                          samples=samples,
                                          moved=Boxes.concat(previous.boxes + boxes)
-                                         if samples is not None else None)
+                                         if partial else None,
+                                         known=previous.cap if partial else None)
             for name, value in result.timings.items():
                 if name != "total":
                     key = name if name in TEMPLATE_STAGES else f"scattering.{name}"

@@ -63,7 +63,7 @@ import math
 import time
 from collections.abc import Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -285,6 +285,25 @@ def empty_capture(params, spp: int) -> CameraCapture:
                          sample=mi.UInt32(u))
 
 
+def merge_capture(known: CameraCapture, part: CameraCapture) -> CameraCapture:
+    """The full capture ``known`` with the samples of the subset capture
+    ``part`` (indices ``part.sample``) replaced by ``part``'s values."""
+    if part.sample is None:
+        return part
+    idx = part.sample
+
+    def put(old, new):
+        out = type(old)(old)
+        if dr.width(idx):
+            dr.scatter(out, new, idx)
+        return out
+    cap = replace(known, d=put(known.d, part.d), T_cam=put(known.T_cam, part.T_cam),
+                  L_surface=put(known.L_surface, part.L_surface), hit=put(known.hit, part.hit),
+                  sample=None, parent=None)
+    dr.eval(cap.d, cap.T_cam, cap.L_surface, cap.hit)
+    return cap
+
+
 def masked_scattering(scattering, params, cap, computed: mi.Bool):
     """L_scat of the ``computed`` samples of ``cap`` (0 elsewhere): the
     method's ``scattering`` runs on the subset capture alone (which keeps
@@ -433,14 +452,20 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
 
     # -- the template -------------------------------------------------------------
     def render_layers(self, scene, sensor=0, seed=0, spp=0, samples=None,
-                      moved=None) -> RenderResult:
+                      moved=None, known=None) -> RenderResult:
         """Every layer of one render (see the module doc; ``samples``: an
         optional boolean mask over the camera samples, mi.Bool or NumPy;
-        ``moved``: boxes of what moved, for a partial render)."""
+        ``moved``: boxes of what moved, for a partial render; ``known``: a
+        full capture whose samples outside ``samples`` are this frame's --
+        an animation's last frame where nothing moved -- so that only the
+        masked samples are captured)."""
         variant = check_variant()
+        if known is not None and samples is None:
+            raise ValueError("known: a capture to complete needs the samples= mask of the "
+                             "samples to capture anew.")
         with self.recording(seed) as record:
-            return self._render_layers(scene, sensor, record.seed, spp, samples, moved, record,
-                                       variant)
+            return self._render_layers(scene, sensor, record.seed, spp, samples, moved, known,
+                                       record, variant)
 
     @contextmanager
     def recording(self, seed=0):
@@ -455,7 +480,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         finally:
             _RECORD.reset(token)
 
-    def _render_layers(self, scene, sensor, seed, spp, samples, moved, record, variant):
+    def _render_layers(self, scene, sensor, seed, spp, samples, moved, known, record, variant):
         t_start = time.perf_counter()
         with self.stage("validate"):
             params = SceneParams.from_scene(scene, sensor)
@@ -467,10 +492,12 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
             mask = sample_mask(samples, cam.width * cam.height * spp)
         alone = mask is not None and self.samples_alone(params)
         with self.stage("capture") as keep:
-            index = dr.compress(mask) if alone else None
-            cap = (empty_capture(params, spp) if alone and not dr.width(index) else
+            index = dr.compress(mask) if alone or known is not None else None
+            cap = (empty_capture(params, spp) if index is not None and not dr.width(index) else
                    capture_camera(params, spp=spp, jitter=bool(jitter), seed=int(seed),
                                   surface=self.output == "full", samples=index))
+            if known is not None and not alone:
+                cap = merge_capture(known, cap)
             keep.append(cap.d)
         computed = None
         if mask is None or alone:

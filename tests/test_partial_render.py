@@ -96,3 +96,19 @@ def test_per_sample_methods_capture_the_masked_samples_alone():
     np.testing.assert_array_equal(np.array(part.capture.sample), np.flatnonzero(mask))
     np.testing.assert_allclose(np.array(part.L_scat),
                                np.array(full.L_scat)[:, mask], rtol=1e-6, atol=1e-9)
+
+
+def test_a_known_capture_is_completed_by_the_masked_samples():
+    """``known=``: only the masked samples are captured anew; the rest come
+    from the given capture (an animation's last frame)."""
+    scene = mi.load_dict(scene_dict(res=(16, 12)))
+    integ = mi.load_dict({"type": "epipolar_tree"})
+    full = integ.render_layers(scene)
+    mask = mask_of(192, 0.1)
+    part = integ.render_layers(scene, samples=mask, known=full.capture)
+    computed = np.array(part.samples, dtype=bool)
+    np.testing.assert_array_equal(np.array(part.capture.d), np.array(full.capture.d))
+    np.testing.assert_allclose(np.array(part.L_scat)[:, computed],
+                               np.array(full.L_scat)[:, computed], rtol=1e-6, atol=1e-9)
+    with pytest.raises(ValueError, match="samples= mask"):
+        integ.render_layers(scene, known=full.capture)
