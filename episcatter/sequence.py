@@ -74,13 +74,15 @@ class FrameResult:
 @dataclass(frozen=True)
 class FrameState:
     """What the next frame reuses: the moving boxes, the full capture and
-    L_scat per sample, the camera/light/medium parameters and the method's
-    frame-wide choices."""
+    L_scat per sample, the camera/light/medium parameters, the method's
+    frame-wide choices and its ``RenderResult.frame_state`` (the epipolar
+    methods' rectification)."""
     boxes: list
     cap: object
     L_scat: object
     invariants: dict
     choices: object
+    method_state: object = None
 
 
 def merge_frame(previous: FrameState, result):
@@ -174,7 +176,8 @@ class Sequence:
                                          samples=samples,
                                          moved=Boxes.concat(previous.boxes + boxes)
                                          if partial else None,
-                                         known=previous.cap if partial else None)
+                                         known=previous.cap if partial else None,
+                                         frame_state=previous.method_state if partial else None)
             for name, value in result.timings.items():
                 if name != "total":
                     key = name if name in TEMPLATE_STAGES else f"scattering.{name}"
@@ -201,7 +204,7 @@ class Sequence:
             return layers
         layers = timed("compose_frame", compose)
         timings["total"] = time.perf_counter() - t_start
-        self._state = FrameState(boxes, cap, L_scat, invariants, choices)
+        self._state = FrameState(boxes, cap, L_scat, invariants, choices, result.frame_state)
         return FrameResult(index=k, layers={key: np.array(v) for key, v in layers.items()},
                            recomputed=recomputed, samples=n, whole_frame=whole, timings=timings,
                            mask=(np.ones(n, bool) if computed_np is None else computed_np)

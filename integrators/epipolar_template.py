@@ -24,7 +24,8 @@ import mitsuba as mi
 from .epipolar_setup import (assign_queries, choose_slices, epipolar_frame_of, march_ring,
                              to_samples)
 from .integrand_svd import SAMPLES
-from .row_subset import dirty_rows, moved_rows, restrict_queries
+from .row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries,
+                         reuse_rectification)
 from .template import EpiscatterIntegrator, read_bool, read_number
 
 
@@ -77,11 +78,26 @@ class EpipolarIntegrator(EpiscatterIntegrator):
 
     def rectify(self, params, cap):
         """Stage ``rectify``: (queries, plan) of the whole frame -- the rows
-        (:meth:`choose_rows`) and every camera sample as their queries."""
+        (:meth:`choose_rows`) and every camera sample as their queries.  A
+        partial render handed the last frame's rectification
+        (``frame_state``) keeps it where it still holds
+        (:func:`~integrators.row_subset.reuse_rectification`); every render
+        hands its own on."""
+        record = self.render_record
         with self.stage("rectify"):
             frame, slices, plan = self.choose_rows(params, cap)
-            queries = assign_queries(params, frame, slices, cap, self.ring_degrees,
-                                     interpolate=self.slice_interpolation)
+            queries = None
+            if self.ROW_SUBSETS and plan is None:
+                queries = reuse_rectification(params, record.given, frame, slices, cap,
+                                              self.ring_degrees, self.slice_interpolation)
+            if queries is not None:
+                self.record(rectification_reused=True)
+            else:
+                queries = assign_queries(params, frame, slices, cap, self.ring_degrees,
+                                         interpolate=self.slice_interpolation)
+            if self.ROW_SUBSETS and plan is None:
+                record.frame_state = Rectification.of(queries, cap, self.ring_degrees,
+                                                      self.slice_interpolation)
         return queries, plan
 
     def widen_samples(self, params, cap, mask, moved=None):

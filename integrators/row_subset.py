@@ -36,7 +36,7 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta_reference
 
-from .epipolar_setup import EpipolarQueries
+from .epipolar_setup import EpipolarQueries, end_gamma
 
 #: "no row" in row maps
 NO_ROW = 0xFFFFFFFF
@@ -166,6 +166,57 @@ def frame_choices(queries: EpipolarQueries, rays) -> tuple:
     else:
         out += [("light_side", low(rays.h))]
     return tuple(out)
+
+
+# -- the last frame's rectification ----------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class Rectification:
+    """A frame's queries and what they were made from: which samples had a
+    medium segment (``d > 0``), the ring and interpolation settings."""
+    queries: EpipolarQueries
+    valid: mi.Bool
+    ring_degrees: float
+    interpolate: bool
+
+    @staticmethod
+    def of(queries, cap, ring_degrees: float, interpolate: bool) -> "Rectification":
+        valid = cap.d > 0
+        dr.eval(valid)
+        return Rectification(queries, valid, float(ring_degrees), bool(interpolate))
+
+
+def _same_slices(a, b) -> bool:
+    return (a.count == b.count and np.array_equal(np.asarray(a.alpha), np.asarray(b.alpha)))
+
+
+def reuse_rectification(params, given, frame, slices, cap, ring_degrees: float,
+                        interpolate: bool) -> EpipolarQueries | None:
+    """The queries :func:`~integrators.epipolar_setup.assign_queries` would
+    make for ``cap``, from an earlier frame's :class:`Rectification`
+    ``given``, or None where it does not hold.  Which slice a sample goes
+    to, its β, its place in the sweep order (slice, β), the ring and
+    ``t_near`` depend on its ray alone; ``d`` only decides whether it is a
+    query at all (``d > 0``) and sets its end point.  So where the camera,
+    the light (same frame axis and slices) and every sample's ``d > 0``
+    are unchanged the earlier queries hold with ``γ_end`` recomputed from
+    the new ``d`` (the same expression, so the same values)."""
+    if not isinstance(given, Rectification):
+        return None
+    q = given.queries
+    if (given.ring_degrees != float(ring_degrees) or given.interpolate != bool(interpolate)
+            or q.n_samples != dr.width(cap.d)
+            or not np.array_equal(np.asarray(q.frame.axis), np.asarray(frame.axis))
+            or not np.array_equal(np.asarray(q.frame.camera.origin),
+                                  np.asarray(frame.camera.origin))
+            or not _same_slices(q.slices, slices)
+            or dr.any(given.valid != (cap.d > 0))[0]):
+        return None
+    if not q.n:
+        return replace(q, frame=frame, slices=slices)
+    gamma_end = end_gamma(frame, q.beta, q.t_near + dr.gather(mi.Float, cap.d, q.sample))
+    dr.eval(gamma_end)
+    return replace(q, frame=frame, slices=slices, gamma_end=gamma_end)
 
 
 # -- which slices can see what moved --------------------------------------------------

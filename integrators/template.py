@@ -91,10 +91,15 @@ def check_variant(variant: str | None = None) -> str:
 
 @dataclass
 class RenderRecord:
-    """What one render accumulates while it runs (seed, stage times, stats)."""
+    """What one render accumulates while it runs (seed, stage times, stats),
+    the frame state it was handed (``given``: an earlier render's
+    ``frame_state``, for a partial render) and the one it hands on
+    (``frame_state``)."""
     seed: int = 0
     timings: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    given: object = None
+    frame_state: object = None
 
 
 #: the record of the render running in this thread/context
@@ -109,13 +114,17 @@ class RenderResult(Mapping):
     computed; None: all of them), ``capture`` (the camera capture that was
     computed: all samples, or a subset capture of the computed ones,
     ``capture.sample`` their indices) and ``L_scat`` (per sample of
-    ``capture``; 0 on samples of a full capture that were not computed)."""
+    ``capture``; 0 on samples of a full capture that were not computed),
+    ``frame_state`` (what the method can reuse in a partial render of a
+    later frame with the same camera, light and medium; opaque, None for
+    most methods)."""
     layers: dict
     timings: dict
     stats: dict
     samples: object = None
     capture: object = None
     L_scat: object = None
+    frame_state: object = None
 
     def __getitem__(self, name):
         return self.layers[name]
@@ -452,18 +461,21 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
 
     # -- the template -------------------------------------------------------------
     def render_layers(self, scene, sensor=0, seed=0, spp=0, samples=None,
-                      moved=None, known=None) -> RenderResult:
+                      moved=None, known=None, frame_state=None) -> RenderResult:
         """Every layer of one render (see the module doc; ``samples``: an
         optional boolean mask over the camera samples, mi.Bool or NumPy;
         ``moved``: boxes of what moved, for a partial render; ``known``: a
         full capture whose samples outside ``samples`` are this frame's --
         an animation's last frame where nothing moved -- so that only the
-        masked samples are captured)."""
+        masked samples are captured); ``frame_state``: the
+        ``RenderResult.frame_state`` of the render ``known`` continues (the
+        method checks it still fits before it uses it)."""
         variant = check_variant()
         if known is not None and samples is None:
             raise ValueError("known: a capture to complete needs the samples= mask of the "
                              "samples to capture anew.")
         with self.recording(seed) as record:
+            record.given = frame_state if samples is not None else None
             return self._render_layers(scene, sensor, record.seed, spp, samples, moved, known,
                                        record, variant)
 
@@ -515,7 +527,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         record.timings["total"] = time.perf_counter() - t_start
         return RenderResult(layers=layers, timings=dict(record.timings),
                             stats=dict(record.stats), samples=computed, capture=cap,
-                            L_scat=L_scat)
+                            L_scat=L_scat, frame_state=record.frame_state)
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if not develop:

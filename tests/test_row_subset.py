@@ -90,3 +90,21 @@ def test_changed_frame_choices_render_the_whole_frame():
                                    atol=1e-7 * full["full"].max())
         if frame.index:
             assert frame.whole_frame == ["frame choices"] and frame.recomputed == frame.samples
+
+
+def test_the_last_frames_rectification_is_reused_where_it_holds():
+    """A partial render handed an earlier render's ``frame_state`` keeps its
+    queries (γ_end recomputed from the new d) and equals the full render."""
+    scene = mi.load_dict(scene_dict(light="spot", res=(40, 30)))
+    integ = mi.load_dict({"type": "epipolar_tree"})
+    full = integ.render_layers(scene)
+    mask = np.zeros(1200, bool)
+    mask[[100, 640]] = True
+    part = integ.render_layers(scene, samples=mask, known=full.capture,
+                               frame_state=full.frame_state)
+    assert part.stats.get("rectification_reused") and part.frame_state is not None
+    computed = np.array(part.samples, dtype=bool)
+    np.testing.assert_allclose(np.array(part.L_scat)[:, computed],
+                               np.array(full.L_scat)[:, computed], rtol=1e-6, atol=1e-9)
+    fresh = integ.render_layers(scene, samples=mask)      # no state: rectified anew
+    assert "rectification_reused" not in fresh.stats
