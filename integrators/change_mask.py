@@ -43,6 +43,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .light_transport import slabs
+
 #: box padding relative to the medium box's diagonal (float rounding of ray tests)
 PAD = 1e-4
 #: planes stored per volume: 6 faces + 12 edge planes; unused slots never cut
@@ -227,6 +229,10 @@ class ShadowVolumes:
     c: mi.Float
     skip: mi.UInt32
     leaf: mi.Bool
+    #: (lo, hi) NumPy: an axis-aligned box holding every volume inside the
+    #: medium box (:func:`volume_bounds`; segments are camera segments, which
+    #: lie in it); None: unknown (no medium given)
+    bounds: tuple | None = None
 
     @staticmethod
     def from_boxes(boxes: Boxes, params, pad: float = PAD) -> "ShadowVolumes":
@@ -256,10 +262,61 @@ class ShadowVolumes:
         return ShadowVolumes(len(boxes), *(mi.Float(np.ascontiguousarray(flat[:, k]))
                                            for k in range(4)),
                              mi.UInt32(np.array(skip, dtype=np.uint32)),
-                             mi.Bool(np.array(leaf, dtype=bool)))
+                             mi.Bool(np.array(leaf, dtype=bool)),
+                             volume_bounds(boxes.padded(2 * pad * params.scene_extent), params)
+                             if len(boxes) and getattr(params, "medium", None) else None)
+
+
+def volume_bounds(boxes: Boxes, params) -> tuple:
+    """(lo, hi): an axis-aligned box holding the shadow volumes of ``boxes``
+    inside the medium box.  Per axis, a volume runs from its box to the
+    medium's face the extrusion moves toward: directional light toward
+    ``l``: the face on the side of −l (the box's own extent where l_a = 0);
+    point/spot light at ``p``: the far face where the box lies wholly on
+    one side of ``p``, the whole medium extent otherwise."""
+    m_lo = np.asarray(params.medium.bounds_min, np.float64)
+    m_hi = np.asarray(params.medium.bounds_max, np.float64)
+    kind, a = light_anchor(params.light)
+    lo, hi = boxes.lo.copy(), boxes.hi.copy()
+    if kind == "directional":
+        lo = np.where(a[None] > 0, np.minimum(lo, m_lo[None]), lo)
+        hi = np.where(a[None] < 0, np.maximum(hi, m_hi[None]), hi)
+    else:
+        lo = np.where(boxes.lo > a[None], lo, np.minimum(lo, m_lo[None]))
+        hi = np.where(boxes.hi < a[None], hi, np.maximum(hi, m_hi[None]))
+    return lo.min(0), hi.max(0)
+
+
+#: clip only the segments meeting the volumes' bounds when fewer than this
+#: fraction of them do (else all: the compaction would cost more than it saves)
+CULL_FRACTION = 0.6
 
 
 def clip_segments(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
+    """:func:`clip_volumes` of the segments that meet ``volumes.bounds``
+    alone (the others meet no volume: ``hit`` False, ``t_lo > t_hi``)."""
+    n = dr.width(d)
+    if volumes.count == 0 or volumes.bounds is None:
+        return clip_volumes(volumes, o, omega, d, first_hit)
+    t0, t1 = slabs(o, omega, volumes.bounds[0], volumes.bounds[1])
+    near = (t1 >= dr.maximum(t0, 0.0)) & (t0 <= d)
+    idx = dr.compress(near)
+    m = dr.width(idx)
+    if m > CULL_FRACTION * n:
+        return clip_volumes(volumes, o, omega, d, first_hit)
+    hit, lo, hi = (dr.zeros(mi.Bool, n), dr.full(mi.Float, dr.inf, n),
+                   dr.full(mi.Float, -dr.inf, n))
+    if m:
+        h, l, u = clip_volumes(volumes, dr.gather(type(o), o, idx),
+                               dr.gather(type(omega), omega, idx),
+                               dr.gather(mi.Float, mi.Float(d), idx), first_hit)
+        dr.scatter(hit, h, idx)
+        dr.scatter(lo, l, idx)
+        dr.scatter(hi, u, idx)
+    return hit, lo, hi
+
+
+def clip_volumes(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
     """Cyrus–Beck clipping of the segments ``o + t·ω``, ``t ∈ [0, d]``
     against every leaf volume (hulls only prune).  Returns ``(hit, t_lo,
     t_hi)``: whether any leaf meets the segment and the hull ``[t_lo,

@@ -150,3 +150,29 @@ def test_hulls_only_prune(light):
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(first, a[0])
+
+
+@pytest.mark.parametrize("light", ["directional", "point", "spot"])
+def test_volume_bounds_hold_the_volumes_and_the_cull_changes_nothing(light):
+    """Every point of the medium box inside a shadow volume (the NumPy
+    oracle) lies in ``volume_bounds``, and clipping only the segments that
+    meet the bounds gives the mask of clipping all of them."""
+    from dataclasses import replace
+
+    from integrators.capture import capture_camera
+    from integrators.change_mask import change_mask, in_shadow_volume_reference, volume_bounds
+    params = SceneParams.from_scene(mi.load_dict(scene_dict(light=light, res=(32, 24))))
+    boxes = Boxes(np.array([[-0.6, 0.1, -0.3], [0.5, -0.4, 0.6]]),
+                  np.array([[-0.3, 0.4, 0.1], [0.8, -0.2, 0.9]]))
+    lo, hi = volume_bounds(boxes, params)
+    rng = np.random.default_rng(5)
+    m_lo, m_hi = np.asarray(params.medium.bounds_min), np.asarray(params.medium.bounds_max)
+    x = rng.uniform(m_lo, m_hi, (200_000, 3))
+    inside = in_shadow_volume_reference(x, boxes, params.light)
+    assert inside.sum() > 100
+    assert np.all((x[inside] >= lo - 1e-9) & (x[inside] <= hi + 1e-9))
+    cap = capture_camera(params)
+    vols = ShadowVolumes.from_sets([boxes], params)
+    culled = np.array(change_mask(cap, vols))
+    print(f"{light}: {culled.sum()} dirty of {culled.size}")
+    np.testing.assert_array_equal(culled, np.array(change_mask(cap, replace(vols, bounds=None))))
