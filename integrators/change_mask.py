@@ -47,7 +47,8 @@ from .light_transport import slabs
 
 #: box padding relative to the medium box's diagonal (float rounding of ray tests)
 PAD = 1e-4
-#: planes stored per volume: 6 faces + 12 edge planes; unused slots never cut
+#: plane slots per volume: 6 faces + 12 edge planes (:func:`shadow_volume_planes`;
+#: :class:`ShadowVolumes` keeps the used ones)
 PLANES_PER_VOLUME = 18
 
 _EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8)
@@ -216,12 +217,15 @@ def shadow_volume_planes(boxes: Boxes, light) -> np.ndarray:
     return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class ShadowVolumes:
-    """Plane arrays of ``count`` volumes on the Dr.Jit device (flattened
-    ``PLANES_PER_VOLUME`` per volume), ready for :func:`clip_segments`.
-    Volume ``v`` is a *leaf* (its pieces count) or the *hull* of the leaves
-    that follow it (a segment missing it skips to volume ``skip[v]``)."""
+    """Plane arrays of ``count`` volumes on the Dr.Jit device, ready for
+    :func:`clip_segments`: the used planes of volume ``v`` (unused slots of
+    :func:`shadow_volume_planes` dropped; one kept where none is used) are
+    ``start[v] .. start[v + 1] - 1`` of ``nx, ny, nz, c``; ``plane_volume``
+    names each plane's volume.  Volume ``v`` is a *leaf* (its pieces
+    count) or the *hull* of the leaves that follow it (a segment missing
+    it skips to volume ``skip[v]``)."""
     count: int
     nx: mi.Float
     ny: mi.Float
@@ -229,6 +233,8 @@ class ShadowVolumes:
     c: mi.Float
     skip: mi.UInt32
     leaf: mi.Bool
+    start: mi.UInt32 | None = None
+    plane_volume: mi.UInt32 | None = None
     #: (lo, hi) NumPy: an axis-aligned box holding every volume inside the
     #: medium box (:func:`volume_bounds`; segments are camera segments, which
     #: lie in it); None: unknown (no medium given)
@@ -258,11 +264,16 @@ class ShadowVolumes:
             leaf += [True] * len(b)
         boxes = Boxes(np.concatenate(lo), np.concatenate(hi)) if lo else Boxes.empty()
         planes = shadow_volume_planes(boxes.padded(pad * params.scene_extent), params.light)
-        flat = planes.reshape(-1, 4).astype(np.float32)
+        used = np.any(planes[..., :3] != 0.0, axis=2)
+        used[~used.any(axis=1), 0] = True           # everything: one plane that never cuts
+        counts = used.sum(axis=1)
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.uint32)
+        flat = planes[used].astype(np.float32)      # volume by volume, slot order
         return ShadowVolumes(len(boxes), *(mi.Float(np.ascontiguousarray(flat[:, k]))
                                            for k in range(4)),
                              mi.UInt32(np.array(skip, dtype=np.uint32)),
-                             mi.Bool(np.array(leaf, dtype=bool)),
+                             mi.Bool(np.array(leaf, dtype=bool)), mi.UInt32(start),
+                             mi.UInt32(np.repeat(np.arange(len(boxes), dtype=np.uint32), counts)),
                              volume_bounds(boxes.padded(2 * pad * params.scene_extent), params)
                              if len(boxes) and getattr(params, "medium", None) else None)
 
@@ -322,19 +333,22 @@ def clip_volumes(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
     t_hi)``: whether any leaf meets the segment and the hull ``[t_lo,
     t_hi]`` of the pieces inside (``t_lo > t_hi`` where none; with
     ``first_hit`` a segment stops at its first leaf hit, so only ``hit`` is
-    complete).  One kernel whatever the volume count."""
+    complete).  One kernel whatever the volume count; a segment leaves a
+    volume at the first plane that empties its interval."""
     n = dr.width(d)
     d = mi.Float(d)
     if volumes.count == 0:
         return dr.zeros(mi.Bool, n), dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)
-    P = PLANES_PER_VOLUME
-    total = dr.opaque(mi.UInt32, volumes.count * P)
+    total = dr.opaque(mi.UInt32, dr.width(volumes.c))
 
     def body(j, t0, t1, lo, hi):
+        v = dr.gather(mi.UInt32, volumes.plane_volume, j)
+        begin = dr.gather(mi.UInt32, volumes.start, v)
+        end = dr.gather(mi.UInt32, volumes.start, v + 1)
         nv = mi.Vector3f(dr.gather(mi.Float, volumes.nx, j), dr.gather(mi.Float, volumes.ny, j),
                          dr.gather(mi.Float, volumes.nz, j))
         c = dr.gather(mi.Float, volumes.c, j)
-        first = (j % P) == 0
+        first = j == begin
         t0 = dr.select(first, 0.0, t0)
         t1 = dr.select(first, d, t1)
         den = dr.dot(nv, omega)
@@ -343,14 +357,16 @@ def clip_volumes(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
         t1 = dr.select(den > 0, dr.minimum(t1, t), t1)
         t0 = dr.select(den < 0, dr.maximum(t0, t), t0)
         t1 = dr.select((den == 0) & (num < 0), -1.0, t1)
-        last = (j % P) == P - 1
-        v = j // P
-        leaf = dr.gather(mi.Bool, volumes.leaf, v, last)
-        meets = last & (t0 <= t1)
+        empty = t0 > t1
+        done = (j + 1 == end) | empty
+        leaf = dr.gather(mi.Bool, volumes.leaf, v, done)
+        meets = done & ~empty
         inside = meets & leaf
         lo = dr.select(inside, dr.minimum(lo, t0), lo)
         hi = dr.select(inside, dr.maximum(hi, t1), hi)
-        nxt = dr.select(last & ~meets & ~leaf, dr.gather(mi.UInt32, volumes.skip, v, last) * P, j + 1)
+        skip_to = dr.gather(mi.UInt32, volumes.start,
+                            dr.gather(mi.UInt32, volumes.skip, v, done & ~leaf), done & ~leaf)
+        nxt = dr.select(done, dr.select(empty & ~leaf, skip_to, end), j + 1)
         if first_hit:
             nxt = dr.select(inside, total, nxt)
         return nxt, t0, t1, lo, hi
