@@ -123,6 +123,9 @@ class LocalLightRays(EqualLightRays):
     offset: mi.UInt32       # (n,) m_s
     d_count: mi.UInt32      # (n,)
     r_in: mi.Float | None = None
+    #: (n,) the rows' numbers in the whole frame (a partial render's rows,
+    #: :mod:`integrators.row_subset`); None: 0..n-1
+    row_id: mi.UInt32 | None = None
 
     def row_counts(self) -> mi.UInt32:
         return self.d_count
