@@ -95,7 +95,7 @@ from rectify.coords import direction_to_alpha_beta
 from .epipolar_setup import (EpipolarQueries, EqualLightRays, QueryTerms, gray, light_ray_channels,
                              light_ray_count, light_side_extinction, row_gamma_end, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
-from .kernel_separation import SeparatedChannel, beta_span
+from .kernel_separation import SeparatedChannel
 from .kernel_table import nystrom_sums, tabulated_terms
 from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
                               segment_weight)
@@ -601,6 +601,28 @@ def query_x_max(queries: EpipolarQueries) -> float:
     return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
 
 
+def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
+    """(γ_lo, γ_hi, β_lo, β_hi): the rectangle on which the separated kernel
+    must be accurate -- the light rays of the rows that carry light
+    (:func:`light_ray_range`; all rows if none does) and the β of their
+    queries, below π − γ_lo (a view ray at β reaches γ < π − β only).  A
+    spot's dark rows start at γ = 0, where K is largest: a kernel separated
+    to a relative tolerance over ``[0, γ_hi]`` is all error on a narrow cone
+    far from the eye; and a view ray that meets no lit light ray has
+    K ≈ 0 on the whole domain, which its normalisation would blow up."""
+    lit = light_ray_range(params, queries)[2]
+    if not dr.any(lit)[0]:
+        lit = dr.full(mi.Bool, True, queries.n)
+    gamma_lo = float(dr.min(dr.select(lit, rays.gamma_lo, dr.inf))[0])
+    gamma_hi = float(dr.max(dr.select(lit, rays.gamma_max, -dr.inf))[0])
+    seen = dr.gather(mi.Bool, lit, queries.row) & (queries.beta < math.pi - gamma_lo)
+    if not dr.any(seen)[0]:
+        seen = dr.full(mi.Bool, True, dr.width(queries.beta))
+    beta_lo = float(dr.min(dr.select(seen, queries.beta, dr.inf))[0])
+    beta_hi = float(dr.max(dr.select(seen, queries.beta, -dr.inf))[0])
+    return gamma_lo, gamma_hi, beta_lo, beta_hi
+
+
 @dataclass(frozen=True)
 class LocalChannel(SeparatedChannel):
     """One colour channel of the §9 kernel, separated
@@ -643,9 +665,7 @@ class LocalSeparation:
                 tol: float) -> LocalChannel:
         L = float(queries.frame.light_distance)
         x_max = query_x_max(queries)
-        gamma_lo = float(dr.min(rays.gamma_lo)[0])
-        gamma_hi = float(dr.max(rays.gamma_max)[0])
-        beta_lo, beta_hi = beta_span(queries)
+        gamma_lo, gamma_hi, beta_lo, beta_hi = lit_domain(params, queries, rays)
         sep = separate_local_channel(params, sigma_t, L, x_max, gamma_lo, gamma_hi,
                                      beta_lo, beta_hi, rank, tol)
         return LocalChannel(math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi), *sep,
