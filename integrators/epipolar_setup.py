@@ -1193,6 +1193,50 @@ def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int)
                  spacing=auto_spacing(params))
 
 
+def disagreeing_samples(queries: EpipolarQueries, values, tolerance: float) -> mi.UInt32:
+    """Camera samples whose two neighbouring slices disagree: the samples
+    shared between two slices (slice interpolation) whose queries'
+    ``values`` (unweighted L_scat per query) differ by more than
+    ``tolerance`` times the larger of the two (channel sums) and by more
+    than ``tolerance``·1e-2 of the largest query value of the frame.  A
+    shaft edge or a narrow spot beam running along the slices lies between
+    such a pair, so the blend of the two is no estimate of either side;
+    :func:`remarch_samples` marches them instead.  ``tolerance >= 1``:
+    none."""
+    if not queries.count or queries.weight is None or tolerance >= 1.0:
+        return dr.zeros(mi.UInt32, 0)
+    y = values[0] + values[1] + values[2]
+    n = queries.n_samples
+    hi = dr.full(mi.Float, -dr.inf, n)
+    lo = dr.full(mi.Float, dr.inf, n)
+    shares = dr.zeros(mi.UInt32, n)
+    dr.scatter_reduce(dr.ReduceOp.Max, hi, y, queries.sample)
+    dr.scatter_reduce(dr.ReduceOp.Min, lo, y, queries.sample)
+    dr.scatter_reduce(dr.ReduceOp.Add, shares, mi.UInt32(1), queries.sample)
+    peak = dr.max(y)[0]
+    spread = hi - lo
+    return dr.compress((shares == 2) & (spread > tolerance * hi)
+                       & (spread > tolerance * 1e-2 * peak))
+
+
+def remarch_samples(params, cap: CameraCapture, queries: EpipolarQueries, values,
+                    samples: mi.UInt32, steps: int):
+    """``values`` with the queries of camera ``samples`` replaced by the
+    brute-force L_scat of their ray (the ring's marcher, exact visibility):
+    both queries of such a sample then carry it, so their weighted sum is
+    the marched value."""
+    if not dr.width(samples):
+        return values
+    marched = march(params, cap.subset(samples), steps, shadow_map=None,
+                    spacing=auto_spacing(params))
+    fixed = dr.zeros(mi.Bool, queries.n_samples)
+    dr.scatter(fixed, True, samples)
+    per_sample = dr.zeros(mi.Color3f, queries.n_samples)
+    dr.scatter(per_sample, marched, samples)
+    mine = dr.gather(mi.Bool, fixed, queries.sample)
+    return dr.select(mine, dr.gather(mi.Color3f, per_sample, queries.sample), values)
+
+
 def to_samples(queries: EpipolarQueries, parts) -> mi.Color3f:
     """Per camera sample: the ``(sample indices, values)`` pairs added
     into zeros (samples in no part scatter nothing; a sample shared by two

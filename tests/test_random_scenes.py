@@ -62,6 +62,11 @@ CLASS_SEEDS = {
     4: "light_on_pixel (class 3): mean +7.6 %, the 256-step ring's equiangular steps "
        "took 1/r² at midpoints (raymarch._steps correction)",
     7: "narrow_spot (class 5): relMSE 26, mean -23 %; slices and light rays of small images",
+    18: "narrow_spot: a one-pixel beam running along the slices, relMSE 2.1e-2 (the blend "
+        "of a lit and a dark slice); samples whose slices disagree are re-marched",
+    95: "narrow_spot: relMSE 15, light blended onto pixels the reference renders black "
+        "next to the beam; re-marched",
+    161: "narrow_spot: relMSE 7.5e-2, beam edge along the slices; re-marched",
     29: "narrow_spot: mean -20 %, relMSE 1.5e-2; the spot's dark rows (γ from 0) set the "
         "separated kernel's domain, whose relative tolerance then left the cone 80° from the "
         "eye all error (epipolar_local_light.lit_domain)",
@@ -72,3 +77,22 @@ CLASS_SEEDS = {
 def test_issue13_class_is_bounded(seed):
     s = _tree_stats(seed)
     assert s["bounded"], (CLASS_SEEDS[seed], s)
+
+
+def test_disagreeing_slices_are_remarched():
+    """The fall-back is what bounds seed 18 (stats["remarched"] counts it);
+    remarch_disagreement=1 turns it off."""
+    from episcatter.reference import render_rgb
+    from experiments import common as c
+
+    spec = rs.random_scene(18)
+    scene = spec.load()
+    ref = render_rgb(scene, c.build("raymarch", {"visibility": "exact", "steps": 2048,
+                                                 "output": "scattering"}))
+    stats = {}
+    for tol in (0.25, 1.0):
+        integ = c.build("epipolar_tree", {"output": "scattering", "remarch_disagreement": tol})
+        res = integ.render_layers(scene, spp=1)
+        stats[tol] = (res.stats["remarched"], st.random_stats(np.array(res["scattering"]), ref, 1.0))
+    assert stats[1.0][0] == 0 and not stats[1.0][1]["bounded"]
+    assert stats[0.25][0] > 0 and stats[0.25][1]["bounded"], stats
