@@ -198,14 +198,16 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     widest row's range (:func:`light_ray_range`) / (d − 1), so that every
     row's range, its start snapped down to the lattice, fits in ``d`` light
     rays (``d = 0``: :func:`~integrators.epipolar_setup.auto_light_rays` with
-    the longest camera path ``t_end_max``); dark rows get one light ray.
+    the longest camera path ``t_end_max``; only lit rows count); dark rows
+    get one light ray.
     Rows with a narrow range thus get fewer light rays, at the common
     spacing, and the kernel is evaluated once per lattice cell
     (:class:`LocalSeparation`)."""
     frame = queries.frame
     lo, hi, lit = light_ray_range(params, queries)
     d = max(int(light_ray_count(params, d, t_end_max)), 2)
-    width = float(dr.max(hi - lo)[0])
+    # the widest *lit* row: a dark row's range [0, max γ_end] carries no light
+    width = float(dr.max(dr.select(lit, hi - lo, 0.0) if dr.any(lit)[0] else hi - lo)[0])
     delta = max(width / (d - 1), 1e-7)
     m = mi.UInt32(dr.floor(lo / delta))
     start = mi.Float(m) * delta

@@ -67,6 +67,8 @@ CLASS_SEEDS = {
     95: "narrow_spot: relMSE 15, light blended onto pixels the reference renders black "
         "next to the beam; re-marched",
     161: "narrow_spot: relMSE 7.5e-2, beam edge along the slices; re-marched",
+    84: "narrow_spot: mean -2.3 %; the light-ray spacing came from the widest row, a dark row "
+        "[0, max γ_end], so the 2° cone got few light rays (local_light_ray_grid: lit rows)",
     29: "narrow_spot: mean -20 %, relMSE 1.5e-2; the spot's dark rows (γ from 0) set the "
         "separated kernel's domain, whose relative tolerance then left the cone 80° from the "
         "eye all error (epipolar_local_light.lit_domain)",
