@@ -1186,11 +1186,34 @@ def gather_queries(queries: EpipolarQueries, result: mi.TensorXf) -> mi.Color3f:
     return mi.Color3f(*(dr.gather(mi.Float, flat, slot * C + c) for c in range(C)))
 
 
+#: the ring samples within a pixel of a point/spot light take this many
+#: times ``ring_steps``
+PEAK_STEP_FACTOR = 8
+
+
 def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int) -> mi.Color3f:
     """Brute-force L_scat of the ring samples (§6): raymarch with exact,
-    ray-traced visibility."""
-    return march(params, cap.subset(queries.ring_sample), steps, shadow_map=None,
-                 spacing=auto_spacing(params))
+    ray-traced visibility.  For a point or spot light, the samples whose
+    view ray passes within one pixel's angle of the light (a light on or
+    next to a pixel centre: the 1/r² peak is steep there, and such a pixel
+    can hold much of the image's energy) take ``PEAK_STEP_FACTOR`` × the
+    steps; they are a handful, the rest of the ring keeps ``steps``."""
+    ring = cap.subset(queries.ring_sample)
+    spacing = auto_spacing(params)
+    if params.light.kind == "directional" or not dr.width(queries.ring_sample):
+        return march(params, ring, steps, shadow_map=None, spacing=spacing)
+    cam = params.camera
+    pixel = 2.0 * max(float(np.linalg.norm(cam.x_axis)) / cam.width,
+                      float(np.linalg.norm(cam.y_axis)) / cam.height)
+    beta = direction_to_alpha_beta(queries.frame, ring.omega)[1]
+    peak = dr.minimum(beta, math.pi - beta) < pixel
+    out = march(params, ring, steps, shadow_map=None, spacing=spacing)
+    near = dr.compress(peak)
+    if dr.width(near):
+        fine = march(params, ring.subset(near), PEAK_STEP_FACTOR * steps, shadow_map=None,
+                     spacing=spacing)
+        dr.scatter(out, fine, near)
+    return out
 
 
 def disagreeing_samples(queries: EpipolarQueries, values, tolerance: float) -> mi.UInt32:
