@@ -80,7 +80,11 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
        :mod:`integrators.partial_sum_tree`; slices without blockers take its
        closed form.
     4. *Ring* (§6): samples within ``ring_degrees`` of the epipole (or the
-       anti-epipole) are ray-marched with exact visibility.
+       anti-epipole) are ray-marched with exact visibility (point/spot: those
+       within a pixel's angle of the light with 8× ``ring_steps``: the 1/r²
+       peak); so are the samples whose two slices disagree
+       (``remarch_disagreement``: a shaft edge or a narrow beam running
+       along the slices).
 
     Beyond the paper (all measured against ``raymarch visibility=exact``):
     light-side attenuation in the medium box; anisotropic phase functions;
