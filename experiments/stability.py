@@ -614,6 +614,26 @@ def compare_logs(before: list, after: list, out, method: str = "epipolar_tree") 
     return summary
 
 
+def summarise_logs(paths, out, tag: str, method: str = "epipolar_tree") -> dict:
+    """The :func:`random_summary` of ``method`` over the progress logs
+    ``paths`` of one set of ``--random`` runs (e.g. a long run split into
+    several processes); writes ``<tag>.csv`` and ``<tag>.md``."""
+    rows = {}
+    for path in paths:
+        for r in parse_log(path):
+            if r["method"] == method:
+                rows.setdefault(r["seed"], r)
+    seeds = sorted(rows)
+    rows = [rows[k] for k in seeds]
+    summary = random_summary(rows, (method,))
+    c.write_csv(out / f"{tag}.csv", rows)
+    text = random_text(summary, len(seeds), seeds[0] if seeds else 0, c.REFERENCE_STEPS)
+    text += f"\n\nLogs: {', '.join(str(p) for p in paths)}; seeds {len(seeds)}\n"
+    c.write_text(out / f"{tag}.md", text)
+    print(text)
+    return summary
+
+
 def main(argv=None):
     p = c.base_parser(__doc__, [], [])
     p.add_argument("--random", type=int, default=0, metavar="N",
@@ -624,7 +644,13 @@ def main(argv=None):
                    help="integrators of --random (default: all three)")
     p.add_argument("--compare-logs", nargs=2, metavar=("BEFORE", "AFTER"), default=None,
                    help="comma-separated progress logs of two --random runs: before/after table")
+    p.add_argument("--summarise-logs", default=None, metavar="LOGS",
+                   help="comma-separated progress logs of one --random set: its summary "
+                        "(written as <tag>.csv/.md)")
     args = p.parse_args(argv)
+    if args.summarise_logs:
+        return summarise_logs(args.summarise_logs.split(","),
+                              c.output_dir(NAME, args.out, args.quick), args.tag)
     if args.compare_logs:
         return compare_logs(*(x.split(",") for x in args.compare_logs),
                             c.output_dir(NAME, args.out, args.quick))

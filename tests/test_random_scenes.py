@@ -113,3 +113,25 @@ def test_disagreeing_slices_are_remarched():
         stats[tol] = (res.stats["remarched"], st.random_stats(np.array(res["scattering"]), ref, 1.0))
     assert stats[1.0][0] == 0 and not stats[1.0][1]["bounded"]
     assert stats[0.25][0] > 0 and stats[0.25][1]["bounded"], stats
+
+
+def test_logs_of_a_split_run_summarise_and_compare(tmp_path):
+    """parse_log reads the progress lines of --random runs; summarise_logs
+    merges a run split over several logs (first log wins on a repeated
+    seed), compare_logs keeps the seeds both sides cover."""
+    a = tmp_path / "a.log"
+    b = tmp_path / "b.log"
+    a.write_text(
+        "[1/2] seed 0 (random, spot, 9x7): epipolar_tree ok relMSE 1e-05 max/peak 0.01 mean 1 leak -\n"
+        "[2/2] seed 1 (enclosed, point, 3x5): epipolar_tree ok relMSE - max/peak - mean - leak 0\n")
+    b.write_text(
+        "[1/2] seed 1 (enclosed, point, 3x5): epipolar_tree UNBOUNDED relMSE - max/peak - mean - "
+        "leak 0.5\n"
+        "[2/2] seed 2 (thick, directional, 1x1): epipolar_tree UNBOUNDED relMSE 0.5 max/peak 2 "
+        "mean 1.5 leak -\n")
+    s = st.summarise_logs([a, b], tmp_path, "merged")["epipolar_tree"]
+    assert (s["scenes"], s["bounded"], s["lit"], s["black"]) == (3, 2, 2, 1)
+    assert s["unbounded_seeds"] == [2]
+    assert (tmp_path / "merged.md").exists() and (tmp_path / "merged.csv").exists()
+    cmp = st.compare_logs([a], [b], tmp_path)
+    assert cmp["seeds"] == [1] and cmp["before"]["bounded"] == 1 and cmp["after"]["bounded"] == 0
