@@ -37,8 +37,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
        ``samples`` per slice between entry and exit (border shrunk by half a
        pixel), rescaled to about one sample per pixel on short slices; each
        sample's camera ray is traced for its exact depth.
-    2. *Refinement*: integration samples every ``initial_step`` samples plus
-       those next to breaks of the chosen criterion; the others are
+    2. *Refinement*: integration samples every ``initial_step`` samples
+       (denser near the epipole, ``epipole_spacing``) plus those next to breaks of the chosen criterion; the others are
        interpolated linearly between their two nearest integration samples.
     3. *Blockers*: per slice a 1D height map of ``light_rays`` texels, the
        first blocker along each of the slice's light rays, traced with
@@ -69,6 +69,10 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                                 the talk's rescaled exit points)
     ``initial_step``            samples between initial integration samples
                                 (default 16; 1 integrates every sample)
+    ``epipole_spacing``         near the epipole, integration samples at most
+                                this fraction of their pixel distance to it
+                                apart (default 0.25; 0: every
+                                ``initial_step``, no densification)
     ``refinement``              ``depth`` (default), ``inscattering`` or
                                 ``visibility`` (see :mod:`.minmax.refinement`)
     ``refinement_threshold``    break threshold (default 0.03)
@@ -110,6 +114,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                                           maximum=1e3)
         self.initial_step = read_number(props, "initial_step", 16, minimum=1, maximum=1 << 16,
                                         integer=True)
+        self.epipole_spacing = read_number(props, "epipole_spacing", 0.25, minimum=0.0)
         self.refinement = read_choice(props, "refinement", "depth", CRITERIA)
         self.refinement_threshold = read_number(props, "refinement_threshold", 0.03, minimum=0.0)
         self.threshold_mode = read_choice(props, "threshold_mode", "relative", THRESHOLD_MODES)
@@ -167,7 +172,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
             with self.stage("table"):
                 table = point_table(params, self.table_resolution)
         with self.stage("refinement") as keep:
-            flags = initial_samples(samples, self.initial_step)
+            flags = initial_samples(samples, self.initial_step, self.epipole_spacing)
             if self.refinement in ("depth", "visibility"):
                 flags |= depth_breaks(samples, self.refinement_threshold, self.threshold_mode)
             if self.refinement == "inscattering":

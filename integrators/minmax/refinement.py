@@ -3,7 +3,16 @@ are interpolated (Yusov 2013, "Sample classification", "Interpolation source
 texture").
 
 * Initial integration samples every ``initial_step`` samples along each
-  slice, plus the first and last sample of the slice's used run.
+  slice, plus the first and last sample of the slice's used run, and denser
+  near the epipole (the talk: "denser near the epipole"): there the
+  in-scattering of a light in view grows like ``1/ρ`` (``ρ`` the pixel
+  distance to the epipole, where every slice starts), which linear
+  interpolation over ``initial_step`` samples overshoots many times over.
+  Within the band where ``initial_step`` samples span more than
+  ``epipole_spacing · ρ`` pixels the step is the largest power of two whose
+  span stays below it (:func:`initial_samples`), so neighbouring
+  integration samples are at most that fraction of their distance to the
+  epipole apart; slices far from an off-screen epipole are unchanged.
 * Criteria that add samples directly before and after a break between
   neighbours ``j, j+1`` of one slice:
 
@@ -71,11 +80,34 @@ def run_ends(samples: EpipolarSamples):
     return samples.used & ~prev_used, samples.used & ~next_used
 
 
-def initial_samples(samples: EpipolarSamples, initial_step: int) -> mi.Bool:
-    """Every ``initial_step``-th sample of each slice plus its run's ends."""
+def local_step(samples: EpipolarSamples, initial_step: int, epipole_spacing: float) -> mi.UInt32:
+    """Per sample: the integration step in samples, ``initial_step`` or, where
+    ``initial_step`` samples span more than ``epipole_spacing · ρ`` pixels,
+    the largest power of two (≥ 1) whose span does not (module docstring)."""
+    step = dr.full(mi.UInt32, initial_step, samples.size)
+    if epipole_spacing <= 0 or samples.rho is None:
+        return step
+    _, j = row_index(samples)
+    rho = samples.rho
+    nxt = _neighbour(samples, rho, +1)
+    prv = _neighbour(samples, rho, -1)
+    # pixel spacing of the samples along the slice (the run's last sample: the one before)
+    has_next = (j < samples.count - 1) & dr.isfinite(nxt)
+    gap = dr.abs(dr.select(has_next, nxt - rho, rho - prv))
+    fit = epipole_spacing * rho / dr.maximum(gap, 1e-6)       # samples within the spacing
+    pow2 = mi.UInt32(1) << mi.UInt32(dr.clip(dr.floor(dr.log2(dr.maximum(fit, 1.0))), 0, 30))
+    near = dr.isfinite(fit) & (fit < initial_step)
+    return dr.select(near, dr.minimum(pow2, initial_step), step)
+
+
+def initial_samples(samples: EpipolarSamples, initial_step: int,
+                    epipole_spacing: float = 0.0) -> mi.Bool:
+    """Every ``local_step``-th sample of each slice (``initial_step`` away
+    from the epipole) plus its run's ends."""
     _, j = row_index(samples)
     first, last = run_ends(samples)
-    return samples.used & ((j % initial_step == 0) | first | last)
+    step = local_step(samples, initial_step, epipole_spacing)
+    return samples.used & ((j % step == 0) | first | last)
 
 
 def breaks(samples: EpipolarSamples, value, threshold: float, mode: str = "relative",

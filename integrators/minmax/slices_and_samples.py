@@ -53,6 +53,7 @@ class EpipolarSamples:
     omega: mi.Vector3f = field(repr=False)
     t_near: mi.Float = field(repr=False)   # pinhole -> ray origin distance
     d: mi.Float = field(repr=False)        # in-medium distance along the ray
+    rho: mi.Float = field(repr=False, default=None)   # pixel distance to the epipole
     on_screen_count: np.ndarray = field(repr=False, default=None)  # (S,) used samples per slice
 
     @property
@@ -107,9 +108,12 @@ def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
                                point(params.medium.bounds_max))
     d = dr.select(used, dr.minimum(t_surf, t_exit), 0.0)
     t_near = dr.norm(ray.o - point(cam.origin))
+    ex, ey = (float(v) for v in frame.epipole)
+    rho = dr.select(used, dr.sqrt(dr.square(x - ex) + dr.square(y - ey)), dr.inf)
     out = EpipolarSamples(frame=frame, slices=slices, grid=grid, used=used, slice=k, beta=beta,
-                          o=ray.o, omega=ray.d, t_near=t_near, d=d, on_screen_count=on_screen)
-    dr.eval(out.used, out.beta, out.o, out.omega, out.t_near, out.d)
+                          o=ray.o, omega=ray.d, t_near=t_near, d=d, rho=rho,
+                          on_screen_count=on_screen)
+    dr.eval(out.used, out.beta, out.o, out.omega, out.t_near, out.d, out.rho)
     return out
 
 
