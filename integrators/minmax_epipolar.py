@@ -20,7 +20,7 @@ from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial
 from .minmax.section_integral import point_table
 from .minmax.slices_and_samples import epipolar_samples
 from .minmax.unscattered import unshadowed_inscattering
-from .minmax.unwarp import fixup, unwarp
+from .minmax.unwarp import DEPTH_SIGMA, fixup, unwarp
 from .minmax.validate import check_scene
 from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
 
@@ -90,7 +90,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     ``max_level``               highest tree level used (default -1: root)
     ``table_resolution``        point/spot table nodes per axis (default 256)
     ``depth_sigma``             relative depth scale of the bilateral weights
-                                (default 0.1)
+                                (default 0.03, the default depth-break
+                                threshold)
     ``fixup_threshold``         bilateral weight sum below which a pixel is
                                 re-marched (default 0.05)
     ``fixup_steps``             steps of the fix-up march (default 128)
@@ -132,7 +133,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.max_level = read_number(props, "max_level", -1, minimum=-1, maximum=30, integer=True)
         self.table_resolution = read_number(props, "table_resolution", 256, minimum=4,
                                             maximum=8192, integer=True)
-        self.depth_sigma = read_number(props, "depth_sigma", 0.1, minimum=1e-6)
+        self.depth_sigma = read_number(props, "depth_sigma", DEPTH_SIGMA, minimum=1e-6)
         self.fixup_threshold = read_number(props, "fixup_threshold", 0.05, minimum=0.0)
         self.fixup_steps = read_number(props, "fixup_steps", 128, minimum=1, integer=True)
         self.ring_degrees = read_number(props, "ring_degrees", 1.0, minimum=0.0, maximum=90.0)

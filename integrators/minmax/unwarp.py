@@ -4,7 +4,12 @@
 Every pixel centre lies between two slices; on each it reads the two
 samples around its own ``β``; the four bilinear weights are multiplied by a
 depth weight ``exp(−½ ((d_i − d)/(σ d))²)`` of the sample's depth ``d_i``
-against the pixel's ``d`` and renormalised (:func:`rectify.unrectify_bilateral`,
+against the pixel's ``d`` and renormalised.  ``σ`` defaults to the default
+relative depth-break threshold of the refinement (:data:`DEPTH_SIGMA`): a
+break the refinement sees as two surfaces is one the weights tell apart (a
+tap across a break of four thresholds weighs e^{−8}); a wider ``σ`` blends
+the far side of small relative breaks (a pillar's edge before a wall 12 %
+deeper) into the near pixels (:func:`rectify.unrectify_bilateral`,
 whose NumPy twin :func:`rectify.unrectify_bilateral_reference` is the direct
 formula).  Pixels whose weight sum falls below ``fixup_threshold`` have no
 sample at their depth (a foreground edge between slices, a thin object):
@@ -29,6 +34,9 @@ from ..capture import CameraCapture
 from ..marching import auto_spacing, march
 from .slices_and_samples import EpipolarSamples
 
+#: default relative depth scale of the bilateral weights (module docstring)
+DEPTH_SIGMA = 0.03
+
 
 @dataclass(frozen=True, eq=False)
 class Unwarped:
@@ -44,7 +52,7 @@ class Unwarped:
 
 
 def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
-           depth_sigma: float):
+           depth_sigma: float = DEPTH_SIGMA):
     """(L per pixel, weight sum per pixel), both flat row-major."""
     S, M = samples.slices.count, samples.count
     frame = samples.frame
