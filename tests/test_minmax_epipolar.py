@@ -122,16 +122,25 @@ def test_tree_build_matches_reference():
     rays = fake_light_rays(z, z, colour, np.zeros(S), np.full(S, 0.1))
     tree = mt.build_tree(rays)
     ref = mt.build_tree_reference(z, z, colour)
-    zmin, zmax = np.asarray(tree.z_min), np.asarray(tree.z_max)
-    cmin, cmax = np3(tree.c_min), np3(tree.c_max)
+    zmin, zmax, state = np.asarray(tree.z_min), np.asarray(tree.z_max), np.asarray(tree.state)
+    assert tree.constant_colour is None
     for level, (a, b, c, d) in enumerate(ref):
         off = mt.MinMaxTree.offset(n, level)
         m = n >> level
         sl = (np.arange(S)[:, None] * 2 * n + off + np.arange(m)[None]).ravel()
         assert np.array_equal(zmin[sl].reshape(S, m), a.astype(np.float32))
         assert np.array_equal(zmax[sl].reshape(S, m), b.astype(np.float32))
-        assert np.array_equal(cmin[sl].reshape(S, m, 3), c)
-        assert np.array_equal(cmax[sl].reshape(S, m, 3), d)
+        assert np.array_equal(state[sl].reshape(S, m), mt.colour_state_reference(c, d))
+
+
+def test_tree_of_a_one_colour_light_stores_no_colours():
+    rng = np.random.default_rng(5)
+    z = random_height_map(rng, 2, 16, 0.0, 1.0)
+    rays = fake_light_rays(z, z, np.full((2, 16, 3), 0.5), np.zeros(2), np.full(2, 0.1))
+    tree = mt.build_tree(rays)
+    assert tree.state is None and tree.constant_colour == pytest.approx((0.5, 0.5, 0.5))
+    ref = mt.build_tree_reference(z, z, np.full((2, 16, 3), 0.5))
+    assert np.array_equal(np.asarray(tree.z_min)[2 * 16 - 2:2 * 16 - 1], ref[-1][0][0].astype(np.float32))
 
 
 def fake_light_rays(z_min, z_max, colour, gamma_lo, delta, u_top=0.0, bias=0.0):

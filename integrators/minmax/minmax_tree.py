@@ -1,11 +1,17 @@
 """1-D min/max binary trees per slice and their traversal (Yusov 2013, "1D
 min/max binary trees"; Chen et al. 2011).
 
-Tree: level 0 holds each texel's (min, max) blocker depth and (min, max)
-light colour (:mod:`.light_rays`); node ``j`` of level ``l`` covers texels
-``[j·2^l, (j+1)·2^l)`` and holds the min of its children's mins and the max
-of their maxima.  Levels ``0 … max_level`` are stored per slice, level ``l``
-at offset ``2n − 2n/2^l`` of the slice's ``2n`` entries.
+Tree: level 0 holds each texel's (min, max) blocker depth (:mod:`.light_rays`);
+node ``j`` of level ``l`` covers texels ``[j·2^l, (j+1)·2^l)`` and holds the
+min of its children's mins and the max of their maxima, and the *colour
+state* of its texels' light colours: ``UNIFORM`` (one colour, not black, to
+``COLOUR_TOLERANCE``), ``BLACK`` (all black) or ``MIXED``.  A node taken
+whole needs no more than that: a lit uniform node adds the colour of its
+first texel (level 0 keeps every texel's colour).  Levels ``0 … max_level``
+are stored per slice, level ``l`` at offset ``2n − 2n/2^l`` of the slice's
+``2n`` entries.  A light of one colour everywhere (directional; a point
+light inside the medium) stores no states and no colours at all
+(``MinMaxTree.constant_colour``).
 
 Semantics (what the tree must reproduce exactly): the *per-texel march* of a
 view ray.  Texel ``i`` owns the part of the ray whose light-ray coordinate
@@ -16,9 +22,9 @@ ends) lies no deeper than the blocker, ``z ≤ z_b + bias``, and then adds
 
 Traversal (talk, "Traversal optimization"): at texel ``i`` and level ``l``
 the node's sections are lit if the ray's largest depth at the node's first
-and last texel points is ≤ the node's min (and the node's colour is
-uniform to float32 rounding, ``COLOUR_TOLERANCE``), shadowed if the ray's smallest depth over them is > the node's max
-(or its colour is black); then the whole node is one section and the march
+and last texel points is ≤ the node's min (and the node's colour state is
+``UNIFORM``), shadowed if the ray's smallest depth over them is > the node's
+max (or its state is ``BLACK``); then the whole node is one section and the march
 moves past it and climbs one level if the new position is aligned to the
 next level; otherwise it descends.  Depth along a ray, as a function of the
 texel, is monotone (directional) or convex with its minimum at the ray's
@@ -50,15 +56,21 @@ from .light_rays import SliceLightRays
 COLOUR_TOLERANCE = 1e-5
 
 
+#: colour states of a node (module docstring)
+UNIFORM, BLACK, MIXED = 0, 1, 2
+
+
 @dataclass(frozen=True, eq=False)
 class MinMaxTree:
-    """Levels ``0 … levels-1`` of every slice (module docstring)."""
+    """Levels ``0 … levels-1`` of every slice (module docstring).  ``state``
+    is None and ``constant_colour`` the light's colour when it is the same
+    for every texel."""
     n: int
     levels: int
     z_min: mi.Float = field(repr=False)
     z_max: mi.Float = field(repr=False)
-    c_min: mi.Color3f = field(repr=False)
-    c_max: mi.Color3f = field(repr=False)
+    state: mi.UInt32 | None = field(repr=False, default=None)
+    constant_colour: tuple | None = None
     slices: int = 0
 
     @staticmethod
@@ -66,35 +78,65 @@ class MinMaxTree:
         return 2 * n - (2 * n >> level)
 
 
+def colour_state(c_lo, c_hi):
+    """UNIFORM / BLACK / MIXED of nodes whose texel colours lie in [c_lo, c_hi]."""
+    black = dr.all(c_hi <= 0.0)
+    uniform = dr.all(c_hi - c_lo <= COLOUR_TOLERANCE * c_hi)
+    return dr.select(black, mi.UInt32(BLACK), dr.select(uniform, mi.UInt32(UNIFORM),
+                                                        mi.UInt32(MIXED)))
+
+
+def constant_colour(colour: mi.Color3f):
+    """The light's colour if every texel has it (to ``COLOUR_TOLERANCE``) and
+    it is not black, else None."""
+    lo = [float(dr.min(colour[c])[0]) for c in range(3)]
+    hi = [float(dr.max(colour[c])[0]) for c in range(3)]
+    if max(hi) > 0 and all(h - l <= COLOUR_TOLERANCE * h for l, h in zip(lo, hi)) \
+            and all(l > 0 or h <= 0 for l, h in zip(lo, hi)):
+        return tuple(0.5 * (l + h) for l, h in zip(lo, hi))
+    return None
+
+
 def build_tree(rays: SliceLightRays, max_level: int | None = None) -> MinMaxTree:
-    """Build levels up to ``max_level`` (default: the root, log2 n)."""
+    """Build levels up to ``max_level`` (default: the root, log2 n).  Each
+    level is computed from the previous one's compact arrays; the colour
+    bounds live only while the level above is built."""
     n, S = rays.n, rays.slices
     top = int(math.log2(n))
     max_level = top if max_level is None else max(0, min(int(max_level), top))
+    const = constant_colour(rays.colour)
     size = S * 2 * n
     z_min, z_max = dr.full(mi.Float, dr.inf, size), dr.full(mi.Float, -dr.inf, size)
-    c_min, c_max = dr.zeros(mi.Color3f, size), dr.zeros(mi.Color3f, size)
+    state = None if const is not None else dr.full(mi.UInt32, MIXED, size)
     idx = dr.arange(mi.UInt32, S * n)
     k = idx // n
     dst = k * (2 * n) + (idx - k * n)
-    for arr, v in ((z_min, rays.z_min), (z_max, rays.z_max), (c_min, rays.colour),
-                   (c_max, rays.colour)):
-        dr.scatter(arr, v, dst)
+    lo, hi = mi.Float(rays.z_min), mi.Float(rays.z_max)
+    c_lo = c_hi = rays.colour
+    dr.scatter(z_min, lo, dst)
+    dr.scatter(z_max, hi, dst)
+    if state is not None:
+        dr.scatter(state, colour_state(c_lo, c_hi), dst)
     for level in range(1, max_level + 1):
         m = n >> level
         idx = dr.arange(mi.UInt32, S * m)
         k = idx // m
         j = idx - k * m
-        base = k * (2 * n)
-        child = base + MinMaxTree.offset(n, level - 1) + 2 * j
-        dst = base + MinMaxTree.offset(n, level) + j
-        for arr, Type, op in ((z_min, mi.Float, dr.minimum), (z_max, mi.Float, dr.maximum),
-                              (c_min, mi.Color3f, dr.minimum), (c_max, mi.Color3f, dr.maximum)):
-            v = op(dr.gather(Type, arr, child), dr.gather(Type, arr, child + 1))
-            dr.scatter(arr, v, dst)
-        dr.eval(z_min, z_max, c_min, c_max)
-    return MinMaxTree(n=n, levels=max_level + 1, z_min=z_min, z_max=z_max, c_min=c_min,
-                      c_max=c_max, slices=S)
+        a = k * (2 * m) + 2 * j                 # children in the previous level's compact arrays
+        lo = dr.minimum(dr.gather(mi.Float, lo, a), dr.gather(mi.Float, lo, a + 1))
+        hi = dr.maximum(dr.gather(mi.Float, hi, a), dr.gather(mi.Float, hi, a + 1))
+        dst = k * (2 * n) + MinMaxTree.offset(n, level) + j
+        dr.scatter(z_min, lo, dst)
+        dr.scatter(z_max, hi, dst)
+        if state is not None:
+            c_lo = dr.minimum(dr.gather(mi.Color3f, c_lo, a), dr.gather(mi.Color3f, c_lo, a + 1))
+            c_hi = dr.maximum(dr.gather(mi.Color3f, c_hi, a), dr.gather(mi.Color3f, c_hi, a + 1))
+            dr.scatter(state, colour_state(c_lo, c_hi), dst)
+            dr.eval(c_lo, c_hi)
+        dr.eval(lo, hi)
+    dr.eval(z_min, z_max) if state is None else dr.eval(z_min, z_max, state)
+    return MinMaxTree(n=n, levels=max_level + 1, z_min=z_min, z_max=z_max, state=state,
+                      constant_colour=const, slices=S)
 
 
 def build_tree_reference(z_min, z_max, colour, max_level=None):
@@ -109,6 +151,13 @@ def build_tree_reference(z_min, z_max, colour, max_level=None):
         out.append((np.minimum(a[:, ::2], a[:, 1::2]), np.maximum(b[:, ::2], b[:, 1::2]),
                     np.minimum(c[:, ::2], c[:, 1::2]), np.maximum(d[:, ::2], d[:, 1::2])))
     return out
+
+
+def colour_state_reference(c_min, c_max):
+    """NumPy twin of :func:`colour_state` on (..., 3) bounds."""
+    black = np.all(c_max <= 0, axis=-1)
+    uniform = np.all(c_max - c_min <= COLOUR_TOLERANCE * c_max, axis=-1)
+    return np.where(black, BLACK, np.where(uniform, UNIFORM, MIXED))
 
 
 # --------------------------------------------------------------------------
@@ -220,12 +269,13 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         end = dr.minimum(i + size, i_last + 1)              # texels [i, end) of the ray
         node = base + (2 * n - ((2 * n) >> level)) + (i >> level)
         z_lo, z_hi = dr.gather(mi.Float, tree.z_min, node), dr.gather(mi.Float, tree.z_max, node)
-        c_lo, c_hi = dr.gather(mi.Color3f, tree.c_min, node), dr.gather(mi.Color3f, tree.c_max, node)
         r_lo, r_hi = depth_range(frame, rays, u_top, t_test(i), t_test(end - 1))
-        uniform = dr.all(c_hi - c_lo <= COLOUR_TOLERANCE * c_hi)
-        black = dr.all(c_hi <= 0.0)
-        lit = (r_hi <= z_lo + bias) & uniform & ~black
-        dark = (r_lo > z_hi + bias) | black
+        lit = r_hi <= z_lo + bias
+        dark = r_lo > z_hi + bias
+        if tree.state is not None:
+            st = dr.gather(mi.UInt32, tree.state, node)
+            lit &= st == UNIFORM
+            dark |= st == BLACK
         leaf = level == 0
         V = dr.select(lit, 1.0, 0.0)
         if leaf_visibility is not None:
@@ -235,7 +285,10 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         done = lit | dark | leaf
         add = done & lit
         ta, tb = t_edge(i), t_edge(end)
-        L = dr.select(add, L + c_lo * V * section(ta, tb), L)
+        I = V * section(ta, tb)
+        if tree.state is not None:       # a uniform node's colour: its first texel's
+            I = I * dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add)
+        L = dr.select(add, L + I, L)
         i_next = dr.select(done, i + size, i)
         level = dr.select(done, climb(i_next, level), level - 1)
         return i_next, level, L, steps + 1
@@ -243,6 +296,8 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
     state = (mi.UInt32(i_first), start_level(i_first), dr.zeros(mi.Color3f, dr.width(rays.t_end)),
              dr.zeros(mi.UInt32, dr.width(rays.t_end)))
     i, level, L, steps = dr.while_loop(state=state, cond=cond, body=body)
+    if tree.constant_colour is not None:
+        L = L * mi.Color3f(*tree.constant_colour)
     return MarchResult(L=L, steps=steps)
 
 
