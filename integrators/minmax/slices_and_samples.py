@@ -87,7 +87,7 @@ def rescaled_grid(frame: EpipolarFrame, slices: Slices, samples: int, density: f
 
 def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
                   on_screen: np.ndarray) -> EpipolarSamples:
-    """Camera ray and depth of every sample (unused ones get ``d = 0``)."""
+    """Camera ray and depth of every used sample (unused ones: zeros)."""
     S, M = slices.count, grid.count
     idx = dr.arange(mi.UInt32, S * M)
     k = idx // M
@@ -99,19 +99,27 @@ def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
     x, y, z = project_direction(frame, w)
     used &= z > 0
     cam = params.camera
-    pos = mi.Point2f(dr.select(used, x, 0.5 * cam.width) / cam.width,
-                     dr.select(used, y, 0.5 * cam.height) / cam.height)
-    ray, _ = params.sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
-    ray.d = dr.normalize(ray.d)
-    _, t_surf = first_surface(params.scene, ray, used)
-    t_exit = box_exit_distance(ray.o, ray.d, point(params.medium.bounds_min),
-                               point(params.medium.bounds_max))
-    d = dr.select(used, dr.minimum(t_surf, t_exit), 0.0)
-    t_near = dr.norm(ray.o - point(cam.origin))
+    # trace the used samples alone (short slices leave much of their row unused)
+    dr.eval(x, y, used)
+    live = dr.compress(used)
+    o, omega = dr.zeros(mi.Point3f, S * M), dr.zeros(mi.Vector3f, S * M)
+    d, t_near = dr.zeros(mi.Float, S * M), dr.zeros(mi.Float, S * M)
+    if dr.width(live):
+        pos = mi.Point2f(dr.gather(mi.Float, x, live) / cam.width,
+                         dr.gather(mi.Float, y, live) / cam.height)
+        ray, _ = params.sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        ray.d = dr.normalize(ray.d)
+        _, t_surf = first_surface(params.scene, ray)
+        t_exit = box_exit_distance(ray.o, ray.d, point(params.medium.bounds_min),
+                                   point(params.medium.bounds_max))
+        dr.scatter(o, ray.o, live)
+        dr.scatter(omega, ray.d, live)
+        dr.scatter(d, dr.minimum(t_surf, t_exit), live)
+        dr.scatter(t_near, dr.norm(ray.o - point(cam.origin)), live)
     ex, ey = (float(v) for v in frame.epipole)
     rho = dr.select(used, dr.sqrt(dr.square(x - ex) + dr.square(y - ey)), dr.inf)
     out = EpipolarSamples(frame=frame, slices=slices, grid=grid, used=used, slice=k, beta=beta,
-                          o=ray.o, omega=ray.d, t_near=t_near, d=d, rho=rho,
+                          o=o, omega=omega, t_near=t_near, d=d, rho=rho,
                           on_screen_count=on_screen)
     dr.eval(out.used, out.beta, out.o, out.omega, out.t_near, out.d, out.rho)
     return out
