@@ -4,14 +4,14 @@
 Every pixel centre lies between two slices; on each it reads the two
 samples around its own ``β``; the four bilinear weights are multiplied by a
 depth weight ``exp(−½ ((d_i − d)/(σ d))²)`` of the sample's depth ``d_i``
-against the pixel's ``d`` and renormalised.  ``σ`` defaults to the default
+against the pixel's ``d`` and renormalised (:func:`unwarp`, one lane per
+pixel reading colours; :func:`rectify.unrectify_bilateral_reference` is the
+direct formula it is tested against).  ``σ`` defaults to the default
 relative depth-break threshold of the refinement (:data:`DEPTH_SIGMA`): a
 break the refinement sees as two surfaces is one the weights tell apart (a
 tap across a break of four thresholds weighs e^{−8}); a wider ``σ`` blends
 the far side of small relative breaks (a pillar's edge before a wall 12 %
-deeper) into the near pixels (:func:`rectify.unrectify_bilateral`,
-whose NumPy twin :func:`rectify.unrectify_bilateral_reference` is the direct
-formula).  Pixels whose weight sum falls below ``fixup_threshold`` have no
+deeper) into the near pixels Pixels whose weight sum falls below ``fixup_threshold`` have no
 sample at their depth (a foreground edge between slices, a thin object):
 the fix-up pass ray-marches them on their own (talk: "using fewer steps and
 no min/max optimization"), with exact visibility for traced blockers and
@@ -27,8 +27,9 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
-from rectify import unrectify_bilateral
+from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
 from ..capture import CameraCapture
 from ..marching import auto_spacing, march
@@ -53,19 +54,34 @@ class Unwarped:
 
 def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
            depth_sigma: float = DEPTH_SIGMA):
-    """(L per pixel, weight sum per pixel), both flat row-major."""
-    S, M = samples.slices.count, samples.count
-    frame = samples.frame
-    v = mi.TensorXf(dr.ravel(values), shape=(S, M, 3))
-    sd = mi.TensorXf(samples.d, shape=(S, M))
-    pd = mi.TensorXf(pixel_depth, shape=(frame.height, frame.width))
-    img, wsum = unrectify_bilateral(frame, samples.slices, samples.grid, v, sd, pd, depth_sigma)
-    flat = img.array
-    n = frame.width * frame.height
-    i = dr.arange(mi.UInt32, n) * 3
-    L = mi.Color3f(dr.gather(mi.Float, flat, i), dr.gather(mi.Float, flat, i + 1),
-                   dr.gather(mi.Float, flat, i + 2))
-    return L, wsum.array
+    """(L per pixel, weight sum per pixel), both flat row-major: the
+    bilateral weights of the module docstring, plain bilinear where the
+    weight sum is below ``rectify.MIN_WEIGHT``."""
+    frame, grid, M = samples.frame, samples.grid, samples.count
+    W, H = frame.width, frame.height
+    pix = dr.arange(mi.UInt32, W * H)
+    y = pix // W
+    alpha, beta = pixel_to_alpha_beta(frame, mi.Float(pix - y * W) + 0.5, mi.Float(y) + 0.5)
+    k0, k1, f = alpha_to_slice(samples.slices, alpha)
+    start, step = mi.Float(grid.start.astype(np.float32)), mi.Float(grid.step.astype(np.float32))
+    inv = 1.0 / (depth_sigma * dr.maximum(dr.abs(pixel_depth), 1e-20))
+    num, plain = dr.zeros(mi.Color3f, W * H), dr.zeros(mi.Color3f, W * H)
+    den = dr.zeros(mi.Float, W * H)
+    for k, w_k in ((k0, 1.0 - f), (k1, f)):
+        # position of the pixel's β on slice k's row, clamped to the row
+        u = dr.clip((beta - dr.gather(mi.Float, start, k)) / dr.gather(mi.Float, step, k),
+                    0.0, M - 1.0)
+        j = dr.minimum(mi.UInt32(dr.floor(u)), M - 2)
+        for s_idx, w in ((k * M + j, w_k * (1.0 - (u - mi.Float(j)))),
+                         (k * M + j + 1, w_k * (u - mi.Float(j)))):
+            v = dr.gather(mi.Color3f, values, s_idx)
+            z = (dr.gather(mi.Float, samples.d, s_idx) - pixel_depth) * inv
+            wb = w * dr.exp(-0.5 * z * z)
+            num += wb * v
+            den += wb
+            plain += w * v
+    ok = den >= MIN_WEIGHT
+    return dr.select(ok, num / dr.select(ok, den, 1.0), plain), den
 
 
 def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
