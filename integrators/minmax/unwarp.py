@@ -65,21 +65,20 @@ def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
     k0, k1, f = alpha_to_slice(samples.slices, alpha)
     start, step = mi.Float(grid.start.astype(np.float32)), mi.Float(grid.step.astype(np.float32))
     inv = 1.0 / (depth_sigma * dr.maximum(dr.abs(pixel_depth), 1e-20))
-    num, plain = dr.zeros(mi.Color3f, W * H), dr.zeros(mi.Color3f, W * H)
-    den = dr.zeros(mi.Float, W * H)
+    taps = []                                   # (flat sample index, bilinear weight)
     for k, w_k in ((k0, 1.0 - f), (k1, f)):
         # position of the pixel's β on slice k's row, clamped to the row
         u = dr.clip((beta - dr.gather(mi.Float, start, k)) / dr.gather(mi.Float, step, k),
                     0.0, M - 1.0)
         j = dr.minimum(mi.UInt32(dr.floor(u)), M - 2)
-        for s_idx, w in ((k * M + j, w_k * (1.0 - (u - mi.Float(j)))),
-                         (k * M + j + 1, w_k * (u - mi.Float(j)))):
-            v = dr.gather(mi.Color3f, values, s_idx)
-            z = (dr.gather(mi.Float, samples.d, s_idx) - pixel_depth) * inv
-            wb = w * dr.exp(-0.5 * z * z)
-            num += wb * v
-            den += wb
-            plain += w * v
+        frac = u - mi.Float(j)
+        taps += [(k * M + j, w_k * (1.0 - frac)), (k * M + j + 1, w_k * frac)]
+    colours = [dr.gather(mi.Color3f, values, i) for i, _ in taps]
+    bilateral = [w * dr.exp(-0.5 * dr.square((dr.gather(mi.Float, samples.d, i) - pixel_depth)
+                                             * inv)) for i, w in taps]
+    den = sum(bilateral)
+    num = sum(b * v for b, v in zip(bilateral, colours))
+    plain = sum(w * v for (_, w), v in zip(taps, colours))
     ok = den >= MIN_WEIGHT
     return dr.select(ok, num / dr.select(ok, den, 1.0), plain), den
 
