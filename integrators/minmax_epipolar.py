@@ -38,8 +38,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
        pixel), rescaled to about one sample per pixel on short slices; each
        sample's camera ray is traced for its exact depth.
     2. *Refinement*: integration samples every ``initial_step`` samples
-       (denser near the epipole, ``epipole_spacing``) plus those next to breaks of the chosen criterion; the others are
-       interpolated linearly between their two nearest integration samples.
+       (denser near the epipole, ``epipole_spacing``) plus those next to
+       breaks of the chosen criterion; the others are interpolated linearly
+       between their two nearest integration samples.
     3. *Blockers*: per slice a 1D height map of ``light_rays`` texels, the
        first blocker along each of the slice's light rays, traced with
        Mitsuba (``traced``) or read from a classic shadow map with
@@ -99,9 +100,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                                 fix-up (default 1; 0: none, as the talk)
     ==========================  ================================================
 
-    One camera sample per pixel centre (the talk's convention).  ``integrator.stats`` holds the
-    counts of the last render (integration samples, fix-up pixels, mean
-    march steps).
+    One camera sample per pixel centre (the talk's convention).  The
+    ``stats`` of :meth:`render_layers`'s result hold the counts of the render
+    (integration samples, fix-up pixels, mean march steps).
     """
 
     def read_properties(self, props):
