@@ -133,6 +133,14 @@ def test_tree_build_matches_reference():
         assert np.array_equal(state[sl].reshape(S, m), mt.colour_state_reference(c, d))
 
 
+def test_overflowed_light_colour_is_not_a_constant_colour():
+    """A light outside the box in thick fog overflows some texels' entry
+    factor to inf (stress case "point near the face"): that is no one-colour
+    light, else the image turns NaN."""
+    colour = mi.Color3f(mi.Float([1e8, np.inf]), mi.Float([1e8, np.inf]), mi.Float([1e8, np.inf]))
+    assert mt.constant_colour(colour) is None
+
+
 def test_tree_of_a_one_colour_light_stores_no_colours():
     rng = np.random.default_rng(5)
     z = random_height_map(rng, 2, 16, 0.0, 1.0)

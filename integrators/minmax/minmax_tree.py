@@ -88,10 +88,12 @@ def colour_state(c_lo, c_hi):
 
 def constant_colour(colour: mi.Color3f):
     """The light's colour if every texel has it (to ``COLOUR_TOLERANCE``) and
-    it is not black, else None."""
+    it is finite and not black, else None (overflowed texels then stay
+    ``MIXED`` and add nothing, as in the per-texel test)."""
     lo = [float(dr.min(colour[c])[0]) for c in range(3)]
     hi = [float(dr.max(colour[c])[0]) for c in range(3)]
-    if max(hi) > 0 and all(h - l <= COLOUR_TOLERANCE * h for l, h in zip(lo, hi)) \
+    if max(hi) > 0 and all(map(math.isfinite, hi)) \
+            and all(h - l <= COLOUR_TOLERANCE * h for l, h in zip(lo, hi)) \
             and all(l > 0 or h <= 0 for l, h in zip(lo, hi)):
         return tuple(0.5 * (l + h) for l, h in zip(lo, hi))
     return None
