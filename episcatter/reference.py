@@ -481,8 +481,10 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
     if deterministic:
         metas = {seed: dict(metas[0], seconds=0.0, run="copy of seed 0 (deterministic)")
                  if seed else metas[0] for seed, _ in plan}
-    half_a, half_b, variance = merge_chunks((store.load(seed, n)[0] for seed, n in todo
-                                             for _ in range(len(plan) // len(todo))), sizes)
+    images = [store.load(seed, n)[0] for seed, n in todo]
+    if deterministic:
+        images = images * len(plan)      # every chunk is chunk 0's image
+    half_a, half_b, variance = merge_chunks(images, sizes)
     wall = time.perf_counter() - t0
     full = 0.5 * (half_a + half_b)
     chunks = [{"seed": seed, "spp": n, "seconds": metas[seed]["seconds"],
