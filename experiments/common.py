@@ -361,6 +361,9 @@ def base_parser(doc: str, default_scenes: list[str], quick_scenes: list[str]):
     p.add_argument("--repeats", type=int, default=None,
                    help="timed runs per setting after the warm-up (default 3, --quick 1)")
     p.add_argument("--out", default=None, help="output folder (default results/<name>)")
+    p.add_argument("--resume", action="store_true",
+                   help="reuse the per-scene checkpoints a previous run left in "
+                        "<out>/checkpoints/ (same settings) instead of measuring again")
     p.set_defaults(_scenes=(default_scenes, quick_scenes))
     return p
 
@@ -421,6 +424,28 @@ def start_run(module, argv, default_scenes: list, quick_scenes: list,
                output_dir(module.NAME, args.out, args.quick), scenes_of(args))
 
 
+def scene_rows_checkpointed(folder: Path, name: str, settings: dict, resume: bool,
+                            measure) -> list[dict]:
+    """``measure()``'s rows for scene ``name``, saved to ``folder/<stem>.pkl``
+    with the settings they were measured with; with ``resume`` a saved file
+    of the same settings is returned instead of measuring again (a long
+    experiment interrupted after some scenes restarts where it stopped)."""
+    import pickle
+    path = Path(folder) / f"{Path(str(name)).stem}.pkl"
+    if resume and path.exists():
+        with open(path, "rb") as f:
+            saved = pickle.load(f)
+        if saved.get("settings") == _plain(settings):
+            print(f"{name}: rows from {path}", flush=True)
+            return saved["rows"]
+        print(f"{name}: {path} has other settings; measuring again", flush=True)
+    rows = measure()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        pickle.dump({"settings": _plain(settings), "rows": rows}, f)
+    return rows
+
+
 def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     """The driver both equal-error speedup experiments share: parse the
     common arguments, run ``module.measure_scene`` on every scene, summarise
@@ -431,7 +456,9 @@ def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     args, s, repeats, out = run.args, run.settings, run.repeats, run.out
     rows = []
     for name in run.scenes:
-        rows += module.measure_scene(name, s, repeats, progress=not args.quick)
+        rows += scene_rows_checkpointed(
+            out / "checkpoints", name, {**s, "repeats": repeats}, args.resume,
+            lambda: module.measure_scene(name, s, repeats, progress=not args.quick))
         print(f"{name}: done (load {load_average()})", flush=True)
     summary = module.speedups(rows)
     text = module.report(rows, summary, s, repeats)
