@@ -95,6 +95,7 @@ class EpipolarIntegrator(EpiscatterIntegrator):
             else:
                 queries = assign_queries(params, frame, slices, cap, self.ring_degrees,
                                          interpolate=self.slice_interpolation)
+            self.record(rows=int(queries.n))
             if self.ROW_SUBSETS and plan is None:
                 record.frame_state = Rectification.of(queries, cap, self.ring_degrees,
                                                       self.slice_interpolation)

@@ -115,15 +115,15 @@ def hall(lit: bool) -> SceneXML:
     return s
 
 
-def _axial(lit: bool, toward_sun: bool, comment: str) -> SceneXML:
+def _axial(lit: bool, toward_sun: bool, comment: str, yaw_deg: float = 0.0) -> SceneXML:
     """Open ground with a grate of posts and a lintel in front of the camera;
     the camera looks exactly along (``toward_sun`` False) or against the
-    light's direction of travel."""
+    light's direction of travel, turned by ``yaw_deg`` about the vertical."""
     s = SceneXML(comment)
     s.medium(Medium(sigma_t=0.05, albedo=0.9, phase=Phase("hg", 0.3)))
     travel = sun_direction(elevation=30.0, azimuth=20.0)
     origin = np.array([0.0, 1.6, 0.0])
-    view = -travel if toward_sun else travel
+    view = _yawed(-travel if toward_sun else travel, yaw_deg)
     s.camera(origin, origin + 10.0 * view, fov=60.0)
     s.directional(travel, irradiance=(22.0, 20.0, 17.0))
     paint = Palette(s, lit)
@@ -149,6 +149,22 @@ def _axial(lit: bool, toward_sun: bool, comment: str) -> SceneXML:
         s.cylinder(f"bar_h{k}", post, c - 3.0 * side, c + 3.0 * side, 0.12)
     s.medium_box((-60, -1, -60), (60, 30, 60))
     return s
+
+
+def _yawed(v, yaw_deg: float) -> np.ndarray:
+    """Direction ``v`` turned by ``yaw_deg`` about the y axis (to the left
+    for positive angles when looking along ``v``)."""
+    a = np.radians(yaw_deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]])
+
+
+def sun_beside(lit: bool, yaw_deg: float) -> SceneXML:
+    """``sun_ahead`` with the camera turned ``yaw_deg`` away from the sun:
+    the epipole off screen at a chosen distance (Klehm §4.2's projective
+    rectification needs it far from the image)."""
+    return _axial(lit, True, f"Camera turned {yaw_deg:g} deg from the sun (epipole off "
+                             "screen)", yaw_deg=yaw_deg)
 
 
 def sun_behind(lit: bool) -> SceneXML:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from experiments import (fourier_scene_independence, fourier_speedup, fourier_table2,
-                         fourier_weights)
+                         fourier_weights, projective_angles)
 from tests.conftest import read_csv
 
 
@@ -173,3 +173,25 @@ def test_speedup_quick(cache, tmp_path):
     assert len(summary) == 2 * 2 * 2 * 3      # scenes x filters x baselines x conventions
     for r in summary:
         assert r["bound"] in ("=", ">=", "<=") and r["speedup"] > 0 and math.isfinite(r["speedup"])
+
+
+def test_projective_angles_quick(cache, tmp_path, capsys):
+    """Both rectifications at every yaw, the one too close to the axis
+    refused by ``projective`` with its reason; a resumed run reads the
+    per-yaw checkpoints instead of rendering again."""
+    out = tmp_path / "pa"
+    rows = projective_angles.main(["--quick", "--out", str(out)])
+    check_outputs(out, ["runs.csv", "runs.json", "table.md"])
+    assert len(rows) == 2 * 2 * 2              # yaws x rectifications x weights
+    near, far = sorted({r["axis_angle_deg"] for r in rows})
+    assert near < 5.0 < far                    # the floor of the projective map
+    for r in rows:
+        if r["rectification"] == "projective" and r["axis_angle_deg"] < 5.0:
+            assert "impossible here" in r["status"]
+        else:
+            assert r["status"] == "ok" and r["rows"] > 0
+            assert abs(r["mean_ratio_b1"] - 1) < 0.05 and r["relmse_b1"] < 1e-2
+    capsys.readouterr()
+    again = projective_angles.main(["--quick", "--out", str(out), "--resume"])
+    assert "rows from" in capsys.readouterr().out
+    assert [r.get("relmse_b1") for r in again] == [r.get("relmse_b1") for r in rows]
