@@ -24,7 +24,7 @@ recorded.  Per setting:
 - memory of the filtered-basis textures, ``rows x texels x M x 4`` bytes
   (float32; the paper stores 8 bits per coefficient, i.e. 1/4 of this), both
   nominal (``slices x light_rays``) and as built (filtered rows only);
-- relMSE (eps 1e-2) and HDR-FLIP against the exact working reference
+- relMSE (scale-free, eps = 1e-2·mean(ref)², DESIGN §2) and HDR-FLIP against the exact working reference
   (``raymarch visibility=exact``, 2048 steps, 1 spp at the pixel centres,
   :func:`experiments.common.exact_reference`; cached).
 
