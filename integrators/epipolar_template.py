@@ -67,7 +67,10 @@ class EpipolarIntegrator(EpiscatterIntegrator):
 
     def integrate_queries(self, params, cap, queries, plan=None):
         """L_scat of every (non-ring) query (hook); ``plan``: what
-        :meth:`choose_rows` returned with the rows."""
+        :meth:`choose_rows` returned with the rows.  With ``ROW_SUBSETS``
+        ``queries`` may be a :class:`~integrators.row_subset.RowSubset`
+        (never with a ``plan``): the frame-wide choices are then made on its
+        ``whole`` queries and recorded (``stats["frame_choices"]``)."""
         raise NotImplementedError
 
     def choose_rows(self, params, cap):
@@ -102,12 +105,15 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         return queries, plan
 
     def widen_samples(self, params, cap, mask, moved=None):
-        """Per slice (``ROW_SUBSETS``): every sample of a row that holds a
-        masked sample or whose slice meets a ``moved`` box
-        (:func:`~integrators.row_subset.dirty_rows`); else the whole frame."""
+        """Per slice (``ROW_SUBSETS``, rows without a ``plan``): every sample
+        of a row that holds a masked sample or whose slice meets a ``moved``
+        box (:func:`~integrators.row_subset.dirty_rows`); else the whole
+        frame."""
         if not self.ROW_SUBSETS:
             return super().widen_samples(params, cap, mask, moved)
-        queries, _ = self.rectify(params, cap)
+        queries, plan = self.rectify(params, cap)
+        if plan is not None:
+            return super().widen_samples(params, cap, mask, moved)
         return dirty_rows(queries, mask, moved_rows(queries, moved))[1]
 
     def partial_scattering(self, params, cap, mask, moved=None):
@@ -117,10 +123,15 @@ class EpipolarIntegrator(EpiscatterIntegrator):
             self.check_light(params)
             queries, plan = self.rectify(params, cap)
             with self.stage("widen") as keep_w:
-                rows, computed = dirty_rows(queries, mask, moved_rows(queries, moved))
-                ring = dr.compress(dr.gather(mi.Bool, computed, queries.ring_sample))
-                sub = restrict_queries(queries, rows, dr.gather(mi.UInt32, queries.ring_sample,
-                                                                 ring))
+                if plan is not None:     # rows fitted to the whole frame: all of them
+                    computed = super().widen_samples(params, cap, mask, moved)
+                    sub = queries if dr.any(computed)[0] else restrict_queries(
+                        queries, dr.zeros(mi.UInt32, 0), dr.zeros(mi.UInt32, 0))
+                else:
+                    rows, computed = dirty_rows(queries, mask, moved_rows(queries, moved))
+                    ring = dr.compress(dr.gather(mi.Bool, computed, queries.ring_sample))
+                    sub = restrict_queries(queries, rows,
+                                           dr.gather(mi.UInt32, queries.ring_sample, ring))
                 keep_w.append(computed)
             L_scat = dr.select(computed, self.integrate_rows(params, cap, sub, plan), 0.0)
             keep.append(L_scat)

@@ -41,6 +41,7 @@ from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             series_visibility, shadowed_sum, texel_blocker_angles,
                             texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
+from .row_subset import frame_choices, take_light_rays, take_rows, whole_queries
 from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
@@ -292,6 +293,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     Shadow Algorithm for Single Scattering, ACM TOG 29(6), 2010.
     """
 
+    #: per-row partial renders (temporal reuse), epipolar rows only: the
+    #: projective map's rows and texels are fitted to the whole frame
+    ROW_SUBSETS = True
+
     def read_method_properties(self, props):
         explicit_filter = any(k in props for k in FILTER_PROPERTIES)
         M = read_number(props, "coefficients", 32, minimum=2, maximum=1024, integer=True)
@@ -400,29 +405,39 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """Σ_γ L K V cover per query and colour channel, as the unshadowed
         sum U times the effective visibility V̄ (class doc)."""
         model = light_model(params)
+        # frame-wide choices on the whole frame's queries (texel count, light
+        # rays, per-light-ray factor, separated kernel, reference-ray length),
+        # then the rows of ``queries`` (all, or a partial render's RowSubset)
+        whole = whole_queries(queries)
         with self.stage("rectify"):
-            d = self.light_rays or auto_texels(params, queries, cap)
+            d = self.light_rays or auto_texels(params, whole, cap)
             if plan is not None:    # Klehm §4.2: texels of equal steps in 1/x
-                rays = self.projective_rays(params, queries, plan, d)
+                rays = self.projective_rays(params, whole, plan, d)
             else:   # local lights: Baran §9, γ = angle at the light (Klehm §3.2)
-                rays = model.light_rays(params, queries, d)
-            L, colour, lit = model.light_factor(params, queries, rays)
+                rays = model.light_rays(params, whole, d)
+            L, colour, lit = model.light_factor(params, whole, rays)
+        with self.stage("svd") as keep:
+            if plan is not None:
+                A, B = texel_separated_kernel(model, params, whole, rays,
+                                              self.svd_rank, self.svd_tolerance)
+            else:
+                A, B = model.separated_kernel(params, whole, rays, self.svd_rank,
+                                              self.svd_tolerance)
+            keep.extend([A, B])
+        length = model.light_length(params, whole, cap)
+        if plan is None:
+            self.record(frame_choices=frame_choices(whole, rays) + (("length", length),))
+        rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
+            take_rows(queries, lit)
+        A, B = take_rows(queries, A), take_rows(queries, B)
+        with self.stage("rectify"):
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)
             smap = self.rectified_map(queries, rays, beta_b)
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
-        with self.stage("svd") as keep:
-            if plan is not None:
-                A, B = texel_separated_kernel(model, params, queries, rays,
-                                              self.svd_rank, self.svd_tolerance)
-            else:
-                A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
-                                              self.svd_tolerance)
-            keep.extend([A, B])
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-        length = model.light_length(params, queries, cap)
         U, V = [], []
         for c in range(channels(L, A)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
