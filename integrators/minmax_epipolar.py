@@ -4,6 +4,8 @@ live in :mod:`integrators.minmax`.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import drjit as dr
 import mitsuba as mi
 
@@ -11,14 +13,16 @@ from rectify import ring_mask
 
 from .capture import capture_shadow_map
 from .minmax.integrate import integrate_samples
-from .minmax.light_rays import slice_light_rays, texel_count
-from .minmax.minmax_tree import build_tree
+from .minmax.light_rays import light_top, slice_light_rays, texel_count
+from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
 from .minmax.profiles import PROFILES, profile_settings
 from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial_samples,
                                 inscattering_breaks, interpolate, interpolation_sources,
                                 visibility_midpoints)
 from .minmax.section_integral import point_table
-from .minmax.slices_and_samples import epipolar_samples
+from .minmax.slice_subset import (SliceState, computed_pixels, dirty_slices, merged_bounds,
+                                  merged_rows, merged_samples)
+from .minmax.slices_and_samples import epipolar_samples, sample_layout, trace_layout
 from .minmax.unscattered import unshadowed_inscattering
 from .minmax.unwarp import DEPTH_SIGMA, fixup, unwarp
 from .minmax.validate import check_scene
@@ -160,6 +164,13 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
             s["light_rays"] = n
         return s
 
+    def slices_alone(self) -> bool:
+        """Whether a slice's values depend on that slice alone (and the
+        frame-wide choices of :mod:`.minmax.slice_subset`): traced blockers
+        and the ``depth`` criterion, whose breaks compare neighbours of one
+        slice.  Otherwise a partial render computes the whole frame."""
+        return self.rectification == "traced" and self.refinement == "depth"
+
     def scattering(self, params, cap):
         check_scene(params, cap)
         s = self.settings(params)
@@ -169,10 +180,84 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 shadow_map = capture_shadow_map(params, cap, s["shadowmap_resolution"])
         with self.stage("samples"):
             samples = epipolar_samples(params, s["slices"], s["samples"], self.sample_density)
-        table = None
-        if params.light.kind != "directional":
-            with self.stage("table"):
-                table = point_table(params, self.table_resolution)
+        table = self.section_table(params)
+        flags, rays = self.slice_blockers(params, samples, s, shadow_map, table)
+        lo, hi = colour_bounds(rays.colour, rays.n)
+        const = constant_colour(lo, hi)
+        per_sample, counts = self.slice_values(params, samples, flags, rays, table, const,
+                                               shadow_map)
+        out = self.to_pixels(params, cap, samples, per_sample, shadow_map)
+        if self.slices_alone():
+            self.render_record.frame_state = SliceState(s, samples, per_sample, lo, hi)
+            self.record(frame_choices=self.frame_choices(params, samples.frame, const))
+        self.record(settings=s, slices=samples.slices.count, samples=samples.size,
+                    fixup_pixels=out.fixup_count, **counts)
+        return out.L
+
+    def partial_scattering(self, params, cap, mask, moved=None):
+        """Per slice (:mod:`.minmax.slice_subset`), given the last frame's
+        :class:`~integrators.minmax.slice_subset.SliceState` (the render's
+        ``frame_state``) where it fits: re-trace and recompute the slices
+        whose half-plane meets a ``moved`` box, unwarp the masked pixels and
+        those next to a recomputed slice.  Else the whole frame."""
+        state = self.render_record.given
+        s = self.settings(params)
+        layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
+        if not (self.slices_alone() and isinstance(state, SliceState) and state.fits(s, layout)):
+            return super().partial_scattering(params, cap, mask, moved)
+        with self.stage("scattering") as keep:
+            check_scene(params, cap)
+            with self.stage("widen"):
+                rows = dirty_slices(layout, moved)
+            lo, hi = state.colour_lo, state.colour_hi
+            samples, per_sample = replace(state.samples, frame=layout.frame), state.values
+            counts = {}
+            if len(rows):
+                with self.stage("samples"):
+                    part = trace_layout(params, layout.rows(rows))
+                table = self.section_table(params)
+                flags, rays = self.slice_blockers(params, part, s, None, table)
+                lo, hi = merged_bounds(state, *colour_bounds(rays.colour, rays.n), rows)
+                const = constant_colour(lo, hi)
+                values, counts = self.slice_values(params, part, flags, rays, table, const)
+                samples = merged_samples(state, part, rows, layout.frame)
+                per_sample = merged_rows(state.values, values, rows, samples.count)
+            else:
+                const = constant_colour(lo, hi)
+            with self.stage("widen") as keep_w:
+                computed = computed_pixels(samples, mask, rows)
+                pixels = dr.compress(computed)
+                keep_w.append(pixels)
+            out = self.to_pixels(params, cap, samples, per_sample, None, pixels)
+            L_scat = dr.zeros(mi.Color3f, cap.count)
+            if dr.width(pixels):
+                dr.scatter(L_scat, out.L, pixels)
+            keep.append(L_scat)
+        self.render_record.frame_state = SliceState(s, samples, per_sample, lo, hi)
+        self.record(frame_choices=self.frame_choices(params, layout.frame, const), settings=s,
+                    slices=layout.slices.count, slices_computed=len(rows),
+                    fixup_pixels=out.fixup_count, **counts)
+        return L_scat, computed
+
+    @staticmethod
+    def frame_choices(params, frame, const) -> tuple:
+        """What every slice's values are made from besides the slice itself
+        (:mod:`.minmax.slice_subset`): the directional depths' light top and
+        the frame's constant light colour (None: none)."""
+        return (("u_top", light_top(params, frame) if frame.is_directional else 0.0),
+                ("const", const))
+
+    # -- stages -------------------------------------------------------------------
+    def section_table(self, params):
+        """Stage ``table``: the point/spot section table (None: directional)."""
+        if params.light.kind == "directional":
+            return None
+        with self.stage("table"):
+            return point_table(params, self.table_resolution)
+
+    def slice_blockers(self, params, samples, s, shadow_map, table):
+        """Stages ``refinement`` and ``blockers`` of the slices of
+        ``samples``: the integration samples and the 1-D height maps."""
         with self.stage("refinement") as keep:
             flags = initial_samples(samples, self.initial_step, self.epipole_spacing)
             if self.refinement in ("depth", "visibility"):
@@ -184,8 +269,15 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         with self.stage("blockers"):
             rays = slice_light_rays(params, samples, s["light_rays"], self.rectification,
                                     shadow_map)
+        return flags, rays
+
+    def slice_values(self, params, samples, flags, rays, table, const, shadow_map=None):
+        """Stages ``tree``, ``integrate`` and ``interpolate``: the value of
+        every sample of ``samples``' slices (and the counts of the render);
+        ``const``: the frame's constant light colour
+        (:func:`~integrators.minmax.minmax_tree.constant_colour`)."""
         with self.stage("tree"):
-            tree = build_tree(rays, None if self.min_max else 0)
+            tree = build_tree(rays, None if self.min_max else 0, const=const)
         max_level = None if self.max_level < 0 else self.max_level
         values = dr.zeros(mi.Color3f, samples.size)
         steps = 0
@@ -208,20 +300,24 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
             sources = interpolation_sources(samples, flags)
             per_sample = interpolate(sources, values, samples.used)
             keep.append(per_sample)
+        n_int = int(dr.count(flags)[0])
+        return per_sample, dict(used_samples=int(dr.count(samples.used)[0]),
+                                integration_samples=n_int, mean_steps=steps / max(n_int, 1))
+
+    def to_pixels(self, params, cap, samples, per_sample, shadow_map, pixels=None):
+        """Stages ``unwarp`` and ``fixup`` of the pixels ``pixels`` (None:
+        every pixel)."""
         with self.stage("unwarp") as keep:
-            L_pix, weight = unwarp(samples, per_sample, cap.d, self.depth_sigma)
+            L_pix, weight = unwarp(samples, per_sample, cap.d, self.depth_sigma, pixels)
             keep.append(L_pix)
         with self.stage("fixup") as keep:
             ring = ring_mask(samples.frame, self.ring_degrees) if self.ring_degrees > 0 else None
+            if ring is not None and pixels is not None:
+                ring = dr.gather(mi.Bool, ring, pixels)
             out = fixup(params, cap, L_pix, weight, self.fixup_threshold, self.fixup_steps,
-                        shadow_map, ring)
+                        shadow_map, ring, pixels)
             keep.append(out.L)
-        n_int = int(dr.count(flags)[0])
-        self.record(settings=s, slices=samples.slices.count, samples=samples.size,
-                    used_samples=int(dr.count(samples.used)[0]),
-                    integration_samples=n_int, fixup_pixels=out.fixup_count,
-                    mean_steps=steps / max(n_int, 1))
-        return out.L
+        return out
 
     def to_string(self):
         return (f"MinMaxEpipolarIntegrator[profile={self.profile}, slices={self.slices}, "

@@ -104,9 +104,24 @@ def take_rows(queries: EpipolarQueries, x):
     return _gather_rows(x, queries.rows, dr.width(x) // n)
 
 
-def _gather_rows(x, rows: mi.UInt32, per: int):
+def _row_lanes(rows: mi.UInt32, per: int) -> mi.UInt32:
+    """Flat indices of the ``per`` entries of each of ``rows``, row by row."""
     j = dr.arange(mi.UInt32, dr.width(rows) * per)
-    return dr.gather(type(x), x, dr.gather(mi.UInt32, rows, j // per) * per + j % per)
+    return dr.gather(mi.UInt32, rows, j // per) * per + j % per
+
+
+def _gather_rows(x, rows: mi.UInt32, per: int):
+    return dr.gather(type(x), x, _row_lanes(rows, per))
+
+
+def put_rows(x, part, rows: mi.UInt32, per: int):
+    """A copy of ``x`` (``per`` entries per row) with the entries of
+    ``rows`` replaced by ``part`` (theirs, row by row): a partial render's
+    rows merged into the last frame's."""
+    out = type(x)(x)
+    if dr.width(rows):
+        dr.scatter(out, part, _row_lanes(rows, per))
+    return out
 
 
 def take_light_rays(queries: EpipolarQueries, rays):
@@ -186,7 +201,8 @@ class Rectification:
         return Rectification(queries, valid, float(ring_degrees), bool(interpolate))
 
 
-def _same_slices(a, b) -> bool:
+def same_slices(a, b) -> bool:
+    """Whether two :class:`~rectify.Slices` are the same slices (count and α)."""
     return (a.count == b.count and np.array_equal(np.asarray(a.alpha), np.asarray(b.alpha)))
 
 
@@ -209,7 +225,7 @@ def reuse_rectification(params, given, frame, slices, cap, ring_degrees: float,
             or not np.array_equal(np.asarray(q.frame.axis), np.asarray(frame.axis))
             or not np.array_equal(np.asarray(q.frame.camera.origin),
                                   np.asarray(frame.camera.origin))
-            or not _same_slices(q.slices, slices)
+            or not same_slices(q.slices, slices)
             or dr.any(given.valid != (cap.d > 0))[0]):
         return None
     if not q.n:
@@ -309,9 +325,17 @@ def dirty_rows(queries: EpipolarQueries, mask: mi.Bool, row_moved: mi.Bool | Non
     return dr.compress(rows_needed), computed
 
 
+def moved_slices(frame, alpha, moved) -> np.ndarray:
+    """Which slices (their α, NumPy) have a half-plane meeting a box of
+    ``moved`` (None: nothing moved)."""
+    alpha = np.asarray(alpha, np.float64)
+    if moved is None or not len(moved) or not alpha.size:
+        return np.zeros(alpha.shape, bool)
+    return in_arcs(alpha, slice_arcs(frame, moved))
+
+
 def moved_rows(queries: EpipolarQueries, moved) -> mi.Bool | None:
     """Rows whose slice half-plane meets a box of ``moved`` (None: none)."""
     if moved is None or not len(moved) or not queries.n:
         return None
-    arcs = slice_arcs(queries.frame, moved)
-    return mi.Bool(in_arcs(np.asarray(queries.alpha), arcs))
+    return mi.Bool(moved_slices(queries.frame, np.asarray(queries.alpha), moved))

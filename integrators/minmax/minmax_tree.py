@@ -86,12 +86,23 @@ def colour_state(c_lo, c_hi):
                                                         mi.UInt32(MIXED)))
 
 
-def constant_colour(colour: mi.Color3f):
+def colour_bounds(colour: mi.Color3f, n: int):
+    """(lo, hi): the smallest and largest texel colour of every slice
+    (``n`` texels each), per channel: what :func:`constant_colour` decides
+    from, slice by slice (a partial render keeps the other slices')."""
+    return (mi.Color3f(*(dr.block_reduce(dr.ReduceOp.Min, colour[c], n) for c in range(3))),
+            mi.Color3f(*(dr.block_reduce(dr.ReduceOp.Max, colour[c], n) for c in range(3))))
+
+
+def constant_colour(colour: mi.Color3f, hi: mi.Color3f | None = None):
     """The light's colour if every texel has it (to ``COLOUR_TOLERANCE``) and
     it is finite and not black, else None (overflowed texels then stay
-    ``MIXED`` and add nothing, as in the per-texel test)."""
+    ``MIXED`` and add nothing, as in the per-texel test).  ``colour``: every
+    texel's, or with ``hi`` the lower bounds of groups of texels whose upper
+    bounds ``hi`` are (:func:`colour_bounds`: the same answer)."""
+    hi = colour if hi is None else hi
     lo = [float(dr.min(colour[c])[0]) for c in range(3)]
-    hi = [float(dr.max(colour[c])[0]) for c in range(3)]
+    hi = [float(dr.max(hi[c])[0]) for c in range(3)]
     if max(hi) > 0 and all(map(math.isfinite, hi)) \
             and all(h - l <= COLOUR_TOLERANCE * h for l, h in zip(lo, hi)) \
             and all(l > 0 or h <= 0 for l, h in zip(lo, hi)):
@@ -99,14 +110,22 @@ def constant_colour(colour: mi.Color3f):
     return None
 
 
-def build_tree(rays: SliceLightRays, max_level: int | None = None) -> MinMaxTree:
+#: ``build_tree``'s ``const`` default: the constant colour of ``rays`` themselves
+OWN_COLOUR = "own"
+
+
+def build_tree(rays: SliceLightRays, max_level: int | None = None,
+               const=OWN_COLOUR) -> MinMaxTree:
     """Build levels up to ``max_level`` (default: the root, log2 n).  Each
     level is computed from the previous one's compact arrays; the colour
-    bounds live only while the level above is built."""
+    bounds live only while the level above is built.  ``const``: the
+    frame's constant light colour (:func:`constant_colour` of every slice's
+    texels, None: not constant) when ``rays`` are some of its slices."""
     n, S = rays.n, rays.slices
     top = int(math.log2(n))
     max_level = top if max_level is None else max(0, min(int(max_level), top))
-    const = constant_colour(rays.colour)
+    if isinstance(const, str) and const == OWN_COLOUR:
+        const = constant_colour(rays.colour)
     size = S * 2 * n
     z_min, z_max = dr.full(mi.Float, dr.inf, size), dr.full(mi.Float, -dr.inf, size)
     state = None if const is not None else dr.full(mi.UInt32, MIXED, size)

@@ -125,13 +125,44 @@ def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
     return out
 
 
-def epipolar_samples(params, slices="auto", samples: int = 256,
-                     density: float = 1.0) -> EpipolarSamples:
-    """Stage 1 of the pipeline: frame, slices, rescaled samples, traced depths."""
+@dataclass(frozen=True, eq=False)
+class SampleLayout:
+    """Where the samples of a frame lie before any is traced: the frame, the
+    slices, the β grid and the used samples per slice (camera and light
+    alone)."""
+    frame: EpipolarFrame
+    slices: Slices
+    grid: BetaGrid
+    on_screen: np.ndarray
+
+    def rows(self, rows: np.ndarray) -> "SampleLayout":
+        """The layout of the slices ``rows`` (sorted indices) alone, each
+        with its own α, β grid and used samples: traced, they are those
+        slices' samples of the whole frame."""
+        sl = self.slices
+        return SampleLayout(self.frame, Slices(sl.alpha[rows], sl.points[rows], False, "custom"),
+                            BetaGrid(self.grid.start[rows], self.grid.step[rows],
+                                     self.grid.count), self.on_screen[rows])
+
+
+def sample_layout(params, slices="auto", samples: int = 256,
+                  density: float = 1.0) -> SampleLayout:
+    """Frame, slices and rescaled β grid of a frame (stage 1 before tracing)."""
     if samples < 2:
         raise ValueError(f"Property 'samples' = {samples} must be >= 2.")
     frame = epipolar_frame_of(params)
     sl = make_epipolar_slices(frame, slices)
     grid, on_screen = rescaled_grid(frame, sl, samples, density)
-    return trace_samples(params, frame, sl, grid, on_screen)
+    return SampleLayout(frame, sl, grid, on_screen)
+
+
+def trace_layout(params, layout: SampleLayout) -> EpipolarSamples:
+    """The traced samples of ``layout`` (:func:`trace_samples`)."""
+    return trace_samples(params, layout.frame, layout.slices, layout.grid, layout.on_screen)
+
+
+def epipolar_samples(params, slices="auto", samples: int = 256,
+                     density: float = 1.0) -> EpipolarSamples:
+    """Stage 1 of the pipeline: frame, slices, rescaled samples, traced depths."""
+    return trace_layout(params, sample_layout(params, slices, samples, density))
 

@@ -52,17 +52,30 @@ class Unwarped:
         return dr.width(self.fixup)
 
 
-def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
-           depth_sigma: float = DEPTH_SIGMA):
-    """(L per pixel, weight sum per pixel), both flat row-major: the
-    bilateral weights of the module docstring, plain bilinear where the
-    weight sum is below ``rectify.MIN_WEIGHT``."""
-    frame, grid, M = samples.frame, samples.grid, samples.count
+def pixel_slices(samples: EpipolarSamples, pixels: mi.UInt32 | None = None):
+    """``(β, k0, k1, f)`` of the pixel centres ``pixels`` (flat row-major;
+    None: every pixel): the pixel's β and the two slices it lies between,
+    ``f`` the weight of ``k1``.  A pixel's unwarped value reads these two
+    slices alone."""
+    frame = samples.frame
     W, H = frame.width, frame.height
-    pix = dr.arange(mi.UInt32, W * H)
+    pix = dr.arange(mi.UInt32, W * H) if pixels is None else pixels
     y = pix // W
     alpha, beta = pixel_to_alpha_beta(frame, mi.Float(pix - y * W) + 0.5, mi.Float(y) + 0.5)
     k0, k1, f = alpha_to_slice(samples.slices, alpha)
+    return beta, k0, k1, f
+
+
+def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
+           depth_sigma: float = DEPTH_SIGMA, pixels: mi.UInt32 | None = None):
+    """(L per pixel, weight sum per pixel) of the pixels ``pixels`` (flat
+    row-major indices; None: every pixel, flat row-major): the bilateral
+    weights of the module docstring, plain bilinear where the weight sum is
+    below ``rectify.MIN_WEIGHT``.  ``pixel_depth``: per pixel of the image."""
+    grid, M = samples.grid, samples.count
+    beta, k0, k1, f = pixel_slices(samples, pixels)
+    if pixels is not None:
+        pixel_depth = dr.gather(mi.Float, pixel_depth, pixels)
     start, step = mi.Float(grid.start.astype(np.float32)), mi.Float(grid.step.astype(np.float32))
     inv = 1.0 / (depth_sigma * dr.maximum(dr.abs(pixel_depth), 1e-20))
     taps = []                                   # (flat sample index, bilinear weight)
@@ -84,17 +97,20 @@ def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
 
 
 def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
-          threshold: float, steps: int, shadow_map=None, also=None) -> Unwarped:
+          threshold: float, steps: int, shadow_map=None, also=None,
+          pixels: mi.UInt32 | None = None) -> Unwarped:
     """Re-march the pixels whose bilateral weight is below ``threshold``,
     and those of the mask ``also`` (camera samples of ``cap``: one per
-    pixel, in pixel order)."""
+    pixel, in pixel order).  ``pixels``: the pixels ``L_pixel``, ``weight``
+    and ``also`` hold (None: every pixel); ``fixup`` lists the re-marched
+    ones by their position there."""
     todo = weight < threshold
     if also is not None:
         todo |= also
     idx = dr.compress(todo)
     L = mi.Color3f(L_pixel)
     if dr.width(idx):
-        sub = cap.subset(idx)
+        sub = cap.subset(idx if pixels is None else dr.gather(mi.UInt32, pixels, idx))
         fixed = march(params, sub, steps, shadow_map=shadow_map, spacing=auto_spacing(params))
         dr.scatter(L, fixed, idx)
     return Unwarped(L=L, weight=weight, fixup=idx)
