@@ -598,7 +598,9 @@ def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma
 
 
 def query_x_max(queries: EpipolarQueries) -> float:
-    """Largest x = tan(β/2) tan(γ_end/2) of the queries' end points (< 1)."""
+    """Largest x = tan(β/2) tan(γ_end/2) of the whole frame's queries' end
+    points (< 1): a frame-wide choice, the same for a partial render's rows."""
+    queries = queries.whole_frame
     x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
     return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
 

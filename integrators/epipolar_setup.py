@@ -208,6 +208,13 @@ class EpipolarQueries:
         return dr.width(self.sample) if self.n else 0
 
     @property
+    def whole_frame(self) -> "EpipolarQueries":
+        """The queries of the whole frame these belong to, on which frame-wide
+        choices are made: themselves (a partial render's
+        :class:`~integrators.row_subset.RowSubset`: the frame's)."""
+        return self
+
+    @property
     def slot(self) -> mi.UInt32:
         """Flat index ``row·r + col`` of each query in (n, r) maps."""
         return self.row * self.r + self.col

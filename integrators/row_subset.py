@@ -51,11 +51,15 @@ class RowSubset(EpipolarQueries):
     rows: mi.UInt32 | None = None
     whole: EpipolarQueries | None = None
 
+    @property
+    def whole_frame(self) -> EpipolarQueries:
+        return self.whole
+
 
 def whole_queries(queries: EpipolarQueries) -> EpipolarQueries:
     """The queries of the whole frame (``queries`` itself unless a subset):
     the frame-wide choices are made on them."""
-    return queries.whole if isinstance(queries, RowSubset) else queries
+    return queries.whole_frame
 
 
 def restrict_queries(queries: EpipolarQueries, rows: mi.UInt32,
