@@ -20,7 +20,8 @@ speedup over the plain one on the suite (issue 15, points 3 and 4).
 
 Writes ``results/temporal_reuse/``: ``table.md``, ``reuse_summary.csv``,
 ``reuse_frames.csv``, ``hybrid.csv``, ``temporal_reuse.json``.
-``python -m experiments.temporal_reuse [--quick] [--skip-hybrid|--skip-reuse]``.
+``python -m experiments.temporal_reuse [--quick] [--skip-hybrid|--skip-reuse]
+[--methods fourier_filter,minmax_epipolar] [--resolution 640x480]``.
 """
 from __future__ import annotations
 
@@ -95,8 +96,17 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None)
     p.add_argument("--skip-hybrid", action="store_true")
     p.add_argument("--skip-reuse", action="store_true")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated integrators to animate with their defaults "
+                        "(e.g. fourier_filter,minmax_epipolar; default: epipolar_tree and "
+                        "raymarch visibility=exact)")
+    p.add_argument("--resolution", default=None, help="WxH of the animation (default 1280x960)")
     args = p.parse_args(argv)
     s = settings_for(args.quick)
+    if args.methods:
+        s["methods"] = [[kind, {}] for kind in args.methods.split(",")]
+    if args.resolution:
+        s["reuse_resolution"] = [int(v) for v in args.resolution.lower().split("x")]
     out = c.output_dir(NAME, args.out, args.quick)
     reuse, frames = reuse_part(s, out) if not args.skip_reuse else ([], [])
     hybrid = hybrid_part(s, out) if not args.skip_hybrid else []
