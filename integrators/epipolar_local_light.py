@@ -635,7 +635,7 @@ class LocalChannel(SeparatedChannel):
     kernel: LocalKernel
     c_b: float              # the b-table's warp rate σt L (γ_hi − γ_lo)
 
-    def a_terms(self, cells, count: int) -> list:
+    def a_terms(self, cells, count: int, lanes: int | None = None) -> list:
         """The mean of a_i over each lattice cell, ``cells = (bounds, Δγ)``
         (:func:`interval_bounds`)."""
         bounds, delta = cells
@@ -643,15 +643,16 @@ class LocalChannel(SeparatedChannel):
         return nystrom_sums(count, self.WA,
                             lambda k: self.kernel.cell_mean(b_grid.gather(k), bounds, delta))
 
-    def b_terms(self, tan_half) -> list:
+    def b_terms(self, tan_half, lanes: int | None = None) -> list:
         """b_i at the queries' tan(β/2): it depends on β alone, so it is
-        tabulated in tan(β/2) with the SVD grid's warp."""
+        tabulated in tan(β/2) with the SVD grid's warp (``lanes``:
+        :func:`~integrators.kernel_table.tabulated_terms`)."""
         g_grid = Angles.of(mi.Float(self.gamma_grid))
 
         def b_sums(x):
             b = Angles.from_tan_half(x)
             return nystrom_sums(dr.width(x), self.WB, lambda k: self.kernel.value(b, g_grid.gather(k)))
-        return tabulated_terms(tan_half, self.x_lo, self.x_hi, self.c_b, b_sums)
+        return tabulated_terms(tan_half, self.x_lo, self.x_hi, self.c_b, b_sums, lanes)
 
 
 class LocalSeparation:

@@ -212,14 +212,14 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         # frame-wide choices on the whole frame's queries, then the rows of
         # ``queries`` (all of them, or a partial render's RowSubset)
         whole = whole_queries(queries)
-        side = self.light_side(params, cap, whole, model)
+        frame_side = self.light_side(params, cap, whole, model)
+        self.record(frame_choices=frame_choices(whole, frame_side.rays))
+        side = frame_side.of_rows(queries)
         with self.stage("svd") as keep:
-            A, B = model.separated_kernel(params, whole, side.rays, self.svd_rank,
-                                          self.svd_tolerance)
+            # separated on the whole frame, evaluated at these rows
+            A, B = model.separated_kernel(params, queries, side.rays, self.svd_rank,
+                                          self.svd_tolerance, frame_rays=frame_side.rays)
             keep.extend([A, B])
-        self.record(frame_choices=frame_choices(whole, side.rays))
-        side = side.of_rows(queries)
-        A, B = take_rows(queries, A), take_rows(queries, B)
         modes = self.blocker_stage(params, cap, queries, side)
         rays, L, D = side.rays, side.L, side.D
         with self.stage("sweep") as keep:

@@ -416,20 +416,20 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             else:   # local lights: Baran §9, γ = angle at the light (Klehm §3.2)
                 rays = model.light_rays(params, whole, d)
             L, colour, lit = model.light_factor(params, whole, rays)
-        with self.stage("svd") as keep:
-            if plan is not None:
-                A, B = texel_separated_kernel(model, params, whole, rays,
-                                              self.svd_rank, self.svd_tolerance)
-            else:
-                A, B = model.separated_kernel(params, whole, rays, self.svd_rank,
-                                              self.svd_tolerance)
-            keep.extend([A, B])
         length = model.light_length(params, whole, cap)
         if plan is None:
             self.record(frame_choices=frame_choices(whole, rays) + (("length", length),))
+        frame_rays = rays
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
-        A, B = take_rows(queries, A), take_rows(queries, B)
+        with self.stage("svd") as keep:
+            if plan is not None:
+                A, B = texel_separated_kernel(model, params, queries, rays,
+                                              self.svd_rank, self.svd_tolerance)
+            else:    # separated on the whole frame, evaluated at these rows
+                A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
+                                              self.svd_tolerance, frame_rays=frame_rays)
+            keep.extend([A, B])
         with self.stage("rectify"):
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):

@@ -104,7 +104,8 @@ def beta_span(queries) -> tuple:
     return float(dr.min(queries.beta)[0]), float(dr.max(queries.beta)[0])
 
 
-def separate_kernel(separation, params, queries, rays, rank: int, tol: float, points=None):
+def separate_kernel(separation, params, queries, rays, rank: int, tol: float, points=None,
+                    frame_rays=None):
     """A (n, d, C, N) at the light rays and B (n, r, C, N) at the queries'
     own β (padded slots: 0) of any light model's kernel (module doc);
     C = 1 for grey σt.  The automatic rank meets ``tol`` after the light
@@ -113,24 +114,34 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     points) at which A is evaluated instead of the separation's own
     ``kernel_points`` (e.g. the Gauss nodes of a projective map's texels,
     :func:`~integrators.fourier_setup.gauss_nodes`): A is then
-    (n, count / n, C, N), in the points' order."""
+    (n, count / n, C, N), in the points' order.
+
+    Some rows of a frame (a partial render: ``queries`` a
+    :class:`~integrators.row_subset.RowSubset`, ``rays`` its rows' light
+    rays, ``frame_rays`` the whole frame's): the kernel is separated on the
+    whole frame (``queries.whole_frame``, ``frame_rays``) and its terms are
+    evaluated at these rows alone (tabulated as the whole frame's would
+    be), equal to the whole frame's A and B at these rows."""
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
     channels = [0] if gray(sigma_t) else [0, 1, 2]
-    gains = light_side_gains(sigma_t, separation.light_side_path(queries, rays))
-    kernels = [separation.channel(params, queries, rays, float(sigma_t[c]), rank, tol / gains[c])
+    whole, whole_rays = queries.whole_frame, rays if frame_rays is None else frame_rays
+    gains = light_side_gains(sigma_t, separation.light_side_path(whole, whole_rays))
+    kernels = [separation.channel(params, whole, whole_rays, float(sigma_t[c]), rank,
+                                  tol / gains[c])
                for c in channels]
     N = max(k.N for k in kernels)
     C = len(kernels)
     own = points is None
     count, points = separation.kernel_points(queries, rays) if own else points
+    lanes_a = separation.kernel_points(whole, whole_rays)[0] if own else count
     tan_half = dr.tan(0.5 * queries.beta)   # only at the queries; padded slots stay 0
     A = dr.zeros(mi.Float, count * C * N)
     B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
     lane_a = dr.arange(mi.UInt32, count) * (C * N)
     lane_b = queries.slot * (C * N)
     for c, kern in enumerate(kernels):
-        a_terms = kern.a_terms(points, count)
-        b_terms = kern.b_terms(tan_half)
+        a_terms = kern.a_terms(points, count, lanes=lanes_a)
+        b_terms = kern.b_terms(tan_half, lanes=whole.count)
         for i in range(kern.N):
             dr.scatter(A, a_terms[i], lane_a + c * N + i)
             dr.scatter(B, b_terms[i], lane_b + c * N + i)
@@ -148,8 +159,9 @@ class SeparatedChannel:
     """One colour channel of a light model's kernel as
     :func:`~integrators.integrand_svd.separate_sampled_kernel` returns it
     (its grids and Nyström weights) and the queries' tan(β/2) range; the
-    light model's subclass adds ``a_terms(points, count)`` and
-    ``b_terms(tan_half)``, the N terms in Dr.Jit."""
+    light model's subclass adds ``a_terms(points, count, lanes)`` and
+    ``b_terms(tan_half, lanes)``, the N terms in Dr.Jit (``lanes``: the
+    whole frame's count, :func:`~integrators.kernel_table.tabulated_terms`)."""
     x_lo: float             # tan(β_lo/2) of the queries
     x_hi: float
     gamma_grid: np.ndarray
@@ -170,17 +182,17 @@ class DirectionalChannel(SeparatedChannel):
     sigma_t: float
     gamma_max: float
 
-    def a_terms(self, gamma, count: int) -> list:
+    def a_terms(self, gamma, count: int, lanes: int | None = None) -> list:
         """a_i at light-ray coordinates ``gamma``."""
         st = self.sigma_t
         return tabulated_terms(gamma, 0.0, self.gamma_max, st * float(np.max(self.x_grid)),
-                               lambda x: exp_kernel_sum(x, self.x_grid, self.WA, st))
+                               lambda x: exp_kernel_sum(x, self.x_grid, self.WA, st), lanes)
 
-    def b_terms(self, tan_half) -> list:
+    def b_terms(self, tan_half, lanes: int | None = None) -> list:
         """b_i at the queries' tan(β/2)."""
         st = self.sigma_t
         return tabulated_terms(tan_half, self.x_lo, self.x_hi, st * self.gamma_max,
-                               lambda x: exp_kernel_sum(x, self.gamma_grid, self.WB, st))
+                               lambda x: exp_kernel_sum(x, self.gamma_grid, self.WB, st), lanes)
 
 
 class DirectionalSeparation:

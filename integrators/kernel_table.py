@@ -47,11 +47,13 @@ KERNEL_TABLE = 4096
 
 
 def tabulated_terms(x: mi.Float, lo: float, hi: float, c: float,
-                    terms_at: Callable[[mi.Float], list]) -> list:
+                    terms_at: Callable[[mi.Float], list], lanes: int | None = None) -> list:
     """``terms_at(x)`` (a list of N Floats, one per term) at every lane of
     ``x`` ∈ [lo, hi]: directly when there are fewer than 4·``KERNEL_TABLE``
-    lanes, else from a table uniform in v = log(1 + c·(x − lo)), lerped."""
-    if dr.width(x) < 4 * KERNEL_TABLE:
+    lanes, else from a table uniform in v = log(1 + c·(x − lo)), lerped.
+    ``lanes``: the count that decides (default: ``x``'s; a partial render's
+    rows pass the whole frame's, so that they get the full render's values)."""
+    if (dr.width(x) if lanes is None else lanes) < 4 * KERNEL_TABLE:
         return terms_at(x)
     lo, hi = float(lo), float(hi)
     c = max(float(c), 1e-6 / max(hi - lo, 1e-30))

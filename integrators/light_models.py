@@ -115,10 +115,13 @@ class LightModel:
     #: the light kind's stages of the kernel separation (:func:`separate_kernel`)
     separation = None
 
-    def separated_kernel(self, params, queries, rays, rank: int, tol: float):
+    def separated_kernel(self, params, queries, rays, rank: int, tol: float, frame_rays=None):
         """(A, B): the separated kernel at the light rays and the queries
-        (one path for both kinds, :func:`~integrators.kernel_separation.separate_kernel`)."""
-        return separate_kernel(self.separation, params, queries, rays, rank, tol)
+        (one path for both kinds, :func:`~integrators.kernel_separation.separate_kernel`;
+        ``frame_rays``: the whole frame's light rays when ``queries`` and
+        ``rays`` are some of its rows)."""
+        return separate_kernel(self.separation, params, queries, rays, rank, tol,
+                               frame_rays=frame_rays)
 
     def query_terms(self, params, cap, queries, rays, colour, V_near):
         """Per-query factors of the integral."""
