@@ -18,13 +18,15 @@ each frame it
 4. asks the integrator for those samples through the render template's
    partial render (``render_layers(samples=mask, moved=boxes)``: the method
    widens the mask to what it computes together -- per sample for
-   ``raymarch``, per slice for ``epipolar_tree`` -- and to the samples whose
+   ``raymarch``, per slice for ``epipolar_tree`` and ``minmax_epipolar``,
+   per row for ``fourier_filter`` -- and to the samples whose
    shared blockers meet the moved boxes; only the dirty samples are
    captured anew, ``known=`` the last capture) and keeps the previous
    frame's values (G-buffer and L_scat) for the others
    (:func:`merge_frame`); there is no periodic refresh;
 5. checks that the frame-wide choices the method recorded (light-ray
-   count, the kernel's SVD inputs: ``stats["frame_choices"]``) are the
+   count, the kernel's SVD inputs, minmax's light top and constant light
+   colour: ``stats["frame_choices"]``) are the
    previous frame's: else the kept samples were computed with other
    choices and the frame is rendered again in full;
 6. composes the layers as the render template does.
