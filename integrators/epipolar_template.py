@@ -21,8 +21,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .epipolar_setup import (assign_queries, choose_slices, epipolar_frame_of, march_ring,
-                             to_samples)
+from .epipolar_setup import (assign_queries, choose_slices, disagreeing_samples,
+                             epipolar_frame_of, march_ring, remarch_samples, to_samples)
 from .integrand_svd import SAMPLES
 from .row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries,
                          reuse_rectification)
@@ -36,6 +36,10 @@ class EpipolarIntegrator(EpiscatterIntegrator):
     #: default of ``slice_interpolation`` (each camera sample shared by its
     #: two neighbouring slices instead of answered by the nearest one)
     SLICE_INTERPOLATION = False
+    #: default of ``remarch_disagreement``: with slice interpolation, a
+    #: camera sample whose two slices' answers differ by more than this
+    #: fraction of the larger is ray-marched like the ring (1: never)
+    REMARCH_DISAGREEMENT = 0.25
     #: whether :meth:`integrate_queries` answers a
     #: :class:`~integrators.row_subset.RowSubset` of the rows exactly as the
     #: whole frame's render does (per-slice partial renders)
@@ -57,6 +61,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                                              self.SLICE_INTERPOLATION)
         self.slice_spacing = read_number(props, "slice_spacing", 1.0, minimum=0.05,
                                          maximum=1e4)
+        self.remarch_disagreement = read_number(props, "remarch_disagreement",
+                                                self.REMARCH_DISAGREEMENT, minimum=0.0,
+                                                maximum=1.0)
         self.read_method_properties(props)
 
     def read_method_properties(self, props) -> None:
@@ -148,7 +155,8 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         :class:`~integrators.row_subset.RowSubset`) and of its ring samples."""
         parts = []
         if queries.n:
-            values = self.integrate_queries(params, cap, queries, plan)
+            values = self.remarch_disagreeing(params, cap, queries,
+                                              self.integrate_queries(params, cap, queries, plan))
             if queries.weight is not None:
                 values = values * queries.weight
             parts.append((queries.sample, values))
@@ -158,3 +166,20 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                               march_ring(params, cap, queries, self.ring_steps)))
                 keep.append(parts[-1][1])
         return to_samples(queries, parts)
+
+    def remarch_disagreeing(self, params, cap, queries, values):
+        """Stage ``ring``: the (unweighted) query ``values`` with the camera
+        samples whose two neighbouring slices disagree by more than
+        ``remarch_disagreement`` ray-marched like the ring
+        (:func:`~integrators.epipolar_setup.disagreeing_samples`,
+        :func:`~integrators.epipolar_setup.remarch_samples`): a shaft edge or
+        a narrow spot beam running along the slices lies between them, and
+        the blend of a lit and a dark answer estimates neither side.  Only
+        with ``slice_interpolation`` (a nearest-slice query has no second
+        answer); ``stats["remarched"]`` counts the samples."""
+        with self.stage("ring") as keep:
+            remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
+            values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps)
+            keep.append(values)
+        self.record(remarched=dr.width(remarch))
+        return values

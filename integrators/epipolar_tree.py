@@ -14,10 +14,9 @@ import drjit as dr
 import mitsuba as mi
 
 from .capture import capture_shadow_map
-from .epipolar_setup import (assemble_queries, blocker_modes, disagreeing_samples,
-                             first_leaf_visibility, gather_queries, last_interval_correction,
-                             last_interval_visibility, rectified_depth, remarch_samples,
-                             sweep_magnitude)
+from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibility,
+                             gather_queries, last_interval_correction,
+                             last_interval_visibility, rectified_depth, sweep_magnitude)
 from .light_models import light_model
 from .partial_sum_tree import integrate_slices
 from .row_subset import frame_choices, take_light_rays, take_rows, whole_queries
@@ -181,8 +180,6 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         self.rectification = read_choice(props, "rectification", "traced",
                                          ("traced", "resampled"))
         self.adaptive_prefilter = read_bool(props, "adaptive_prefilter", True)
-        self.remarch_disagreement = read_number(props, "remarch_disagreement", 0.25,
-                                                minimum=0.0, maximum=1.0)
 
     def reuse_refusal(self):
         if self.rectification == "resampled":
@@ -239,13 +236,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms.magnitude = sweep_magnitude(queries, A, B, L)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.append(value)
-        with self.stage("ring") as keep:
-            # samples whose two slices disagree: marched like the ring
-            remarch = disagreeing_samples(queries, value, self.remarch_disagreement)
-            value = remarch_samples(params, cap, queries, value, remarch, self.ring_steps)
-            keep.append(value)
-        self.record(last_interval_traced=last.traced, query_count=queries.count,
-                    remarched=dr.width(remarch))
+        self.record(last_interval_traced=last.traced, query_count=queries.count)
         return value
 
     # -- stages (each timed; an experiment may call or override them) -------------

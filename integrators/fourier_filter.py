@@ -79,7 +79,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
        its angle β to the light; a texel holds its blocker's angle β_b
        (view ray β is shadowed there iff β > β_b: Eq. 5's step).  Every
        camera sample is evaluated at its **own** β and depth (it is a query
-       of its nearest slice; nothing is interpolated back to pixels).
+       of both neighbouring slices, weighted by its position between them,
+       or with ``slice_interpolation=false`` of its nearest slice; nothing
+       is interpolated back to pixels; samples whose two slices disagree
+       are ray-marched, ``remarch_disagreement``).
        See :mod:`integrators.fourier_setup` for the depth mapping
        (``depth_range``).  The rows and texels are either the epipolar
        ones (Baran's sinh slices, ``d`` equal light rays per slice) or
@@ -213,9 +216,17 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                pixels apart (default 1)
     ``slice_interpolation``    each camera sample a query of both
                                neighbouring slices, weighted by its
-                               position between them (default false: the
-                               nearest slice; the filter's own error
-                               dominates, :mod:`integrators.epipolar_template`)
+                               position between them (default true;
+                               false: the nearest slice, as the paper:
+                               a sample across a shaft's edge from its
+                               slice takes the other side's light,
+                               :mod:`integrators.epipolar_template`)
+    ``remarch_disagreement``   with ``slice_interpolation``: a camera
+                               sample whose two slices' answers differ by
+                               more than this fraction of the larger is
+                               ray-marched like the ring (default 0.25;
+                               1: never; ``stats["remarched"]``; shared
+                               with ``epipolar_tree``)
     ``light_rays``             texels (light rays) per row; 0 (default):
                                4× ``epipolar_tree``'s automatic count, at
                                most 1024 (:func:`auto_texels`); point/spot:
@@ -280,7 +291,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     truncated Fourier series blurs each shadow step over ~1/M of the slice's
     depth range and rings (Gibbs) next to it; a sample uses the blockers and
     the light-side factor (point/spot: intensity, fall-off, texture) of its
-    nearest slice (row); visibility is resolved to a light-ray interval
+    two neighbouring slices (or its nearest slice, row); visibility is resolved to a light-ray interval
     (texel); point/spot: the short segment between pinhole and near plane
     is one midpoint sample; projective: the segment in front of the map's
     first edge takes the first texel's visibility.  Coloured σt or a
@@ -296,6 +307,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     #: per-row partial renders (temporal reuse), epipolar rows only: the
     #: projective map's rows and texels are fitted to the whole frame
     ROW_SUBSETS = True
+    SLICE_INTERPOLATION = True
 
     def read_method_properties(self, props):
         explicit_filter = any(k in props for k in FILTER_PROPERTIES)
