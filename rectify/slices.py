@@ -110,7 +110,11 @@ def _sinh_edge_points(frame: EpipolarFrame, P0, P1, n, h, spacing: float = 1.0):
         # parallel lines: ``spacing`` px apart perpendicular to them
         cosang = abs(float(n @ frame.direction))
         return uniform_edge_points(P0, P1, spacing / cosang)
-    if h <= 0.5:
+    if h <= 0.5 * spacing:
+        # every point between E and this edge is within spacing/2 of the
+        # corner lines (a 1 px spacing: no pixel centre lies there at all);
+        # the bound scales with the spacing -- at a small image's fine
+        # spacing an edge a fraction of a pixel from E still needs its slices
         return np.stack([P0, P1])
     F = frame.epipole + h * n                        # foot of the perpendicular
     x0, x1 = float((P0 - F) @ e), float((P1 - F) @ e)
@@ -420,16 +424,24 @@ def distance_to_slices(frame: EpipolarFrame, slices: Slices) -> mi.Float:
     return dr.minimum(d0, d1)
 
 
-def distance_to_slices_reference(frame: EpipolarFrame, slices: Slices) -> np.ndarray:
+def distance_to_slices_reference(frame: EpipolarFrame, slices: Slices,
+                                 points: np.ndarray | None = None) -> np.ndarray:
     """Brute force over all pixels and all slices: (H, W) distance [px] of each
-    pixel centre to the nearest slice half-line."""
+    pixel centre to the nearest slice half-line; with ``points`` (N, 2)
+    image positions [px] instead (antialiased samples lie anywhere in
+    their pixel), (N,) distances."""
     L = slice_lines(frame, slices)
-    yy, xx = np.mgrid[0:frame.height, 0:frame.width]
-    px, py = xx.ravel()[:, None] + 0.5, yy.ravel()[:, None] + 0.5
+    if points is None:
+        yy, xx = np.mgrid[0:frame.height, 0:frame.width]
+        px, py = xx.ravel()[:, None] + 0.5, yy.ravel()[:, None] + 0.5
+    else:
+        pts = np.asarray(points, np.float64).reshape(-1, 2)
+        px, py = pts[:, :1], pts[:, 1:]
     k = np.arange(slices.count)[None, :]
     cols = _line_columns(L)
     d = _halfline_distance(px, py, L, k, lambda name, kk: cols[name][kk])
-    return d.min(axis=1).reshape(frame.height, frame.width)
+    d = d.min(axis=1)
+    return d if points is not None else d.reshape(frame.height, frame.width)
 
 
 def max_distance_to_slices(frame: EpipolarFrame, slices: Slices,

@@ -51,13 +51,18 @@ def test_single_reference_ray_is_the_paper_and_loses_energy_in_thick_fog():
     assert metrics.mean_ratio(img, _reference("sun_room", res, 1.0)) < 0.9
 
 
-@pytest.mark.parametrize("name", ["sun_room", "hall", "spot_room", "nave_onscreen"])
+@pytest.mark.parametrize("name", ["sun_room", "hall", "spot_room", "nave_onscreen",
+                                  "sun_behind"])
 def test_one_pixel_image(name):
-    """1×1 was off by up to 15× (hall): its sample read the blockers of a
-    slice half the field of view away from its own ray."""
+    """1×1 (the scene's 64 antialiased samples in one pixel) was off by up
+    to 15× (hall: 0 against 0.0158): its sample read the blockers of a
+    slice half the field of view away from its own ray.  Then 8.6 % low
+    (nave_onscreen, sun_behind: the (anti-)epipole within half a pixel of
+    an edge, whose wedge got no slices at the small image's fine spacing;
+    rectify.slices)."""
     img = _render(name, (1, 1), "fourier_filter")
     ref = _reference(name, (1, 1))
-    assert float(img.mean()) == pytest.approx(float(ref.mean()), rel=0.1, abs=1e-3 * float(ref.max()))
+    assert float(img.mean()) == pytest.approx(float(ref.mean()), rel=0.02, abs=1e-3 * float(ref.max()))
 
 
 def test_small_image_rows():
