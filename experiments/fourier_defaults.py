@@ -7,8 +7,9 @@ Three measurements, all against the exact working reference
 
 1. *accuracy*: every suite scene and every stress scene of
    :mod:`scenes.fourier_stress` at the defaults (``default``) and with
-   Klehm's single reference ray per row (``paper``: ``reference_rays=1``,
-   what the defaults were before the change: the Fourier filter, M = 32):
+   Klehm's single reference ray per row on the nearest slice (``paper``:
+   ``reference_rays=1, slice_interpolation=false``, what the defaults were
+   before issue 12: the Fourier filter, M = 32):
    scale-free relMSE, mean ratio,
    largest pixel error over the reference peak, non-finite pixels, and the
    light on reference-black pixels (reference below 1e-4 of its peak): the
@@ -16,8 +17,10 @@ Three measurements, all against the exact working reference
    Error maps (|test − ref| / peak) of the stress scenes as PNGs.
 2. *thickness*: the sun room with σt swept so that σt · (medium-box
    diagonal) runs from 0.01 to 10: the mean ratio of both.
-3. *cost* (``--time``): warm end-to-end time of both, median of
-   ``--repeats`` interleaved runs in one process, at ``--time-size``.
+3. *cost* (``--time``): warm end-to-end time of ``paper``, ``before``
+   (the nearest slice, the defaults before the slice interpolation) and the
+   defaults, median of ``--repeats`` interleaved runs in one process, at
+   ``--time-size``, with the stage timings.
 
 Writes ``results/fourier_defaults/``: ``accuracy.csv``, ``thickness.csv``,
 ``timing.csv``, ``fourier_defaults.json``, ``table.md`` and
@@ -38,9 +41,15 @@ from . import common as c
 
 NAME = "fourier_defaults"
 #: label -> fourier_filter properties
-MODES = {"default": {}, "paper": {"reference_rays": 1}}
-#: (the default: ``visibility="auto"`` = the exact sum; ``paper`` sets a
-#: filter property, so ``auto`` takes the Fourier filter)
+MODES = {"default": {}, "paper": {"reference_rays": 1, "slice_interpolation": False}}
+#: (the default: ``visibility="auto"`` = the exact sum, slice interpolation
+#: with the re-march of disagreeing samples; ``paper`` sets a filter
+#: property, so ``auto`` takes the Fourier filter, on the nearest slice)
+#: the cost table's modes: ``before`` = the defaults before the slice
+#: interpolation and re-march (main's: the nearest slice; the exact sum for
+#: directional lights, the filter with its reference rays for point/spot)
+TIME_MODES = {"paper": MODES["paper"], "before": {"slice_interpolation": False},
+              "default": {}}
 #: optical thicknesses σt · size of the sun-room sweep
 TAUS = (0.01, 0.1, 1.0, 3.0, 10.0)
 #: reference-black pixels: reference below this fraction of its peak
@@ -144,16 +153,17 @@ def timing(s: dict, repeats: int, progress: bool) -> list[dict]:
     for name in [n for n in s["scenes"] if n in scenes.SUITE] or s["scenes"]:
         scene = c.load(c.scene_file(name), c.resolution(w, h))
         loads = [c.load_average()]
-        timed = c.time_renders(scene, {m: c.build("fourier_filter", p) for m, p in MODES.items()},
+        timed = c.time_renders(scene, {m: c.build("fourier_filter", p)
+                                       for m, p in TIME_MODES.items()},
                                repeats=repeats, progress=progress)
         loads.append(c.load_average())
-        for label in MODES:
+        for label in TIME_MODES:
             t = timed[label]
             rows.append({"scene": name, "mode": label, "width": w, "height": h,
                          "time_s": t.get("time_s"), "first_run_s": t.get("first_run_s"),
                          "scattering_s": t.get("scattering_s"), "stages": t.get("stages"),
                          "load": loads})
-        print(name, {m: c.fmt(timed[m].get("time_s")) for m in MODES}, loads, flush=True)
+        print(name, {m: c.fmt(timed[m].get("time_s")) for m in TIME_MODES}, loads, flush=True)
     return rows
 
 
@@ -197,8 +207,9 @@ def report(acc, thick, times, s, repeats) -> str:
              f"({s['reference_steps']} steps), 1 spp at pixel centres, plain scenes "
              "(scattering only). relMSE: scale-free (eps = 1e-2 · mean(ref)²). "
              f"Leak: light on reference-black pixels (ref < {BLACK:g} · peak) over the peak; "
-             f"leak px: how many exceed {BLACK:g} · peak. `paper`: reference_rays=1 "
-             "(Klehm's single reference ray, the previous default)."]
+             f"leak px: how many exceed {BLACK:g} · peak. `paper`: reference_rays=1, "
+             "slice_interpolation=false (Klehm's single reference ray on the nearest slice, "
+             "the defaults before issue 12)."]
     header = ["scene", "mode", "relMSE", "mean ratio", "max err/peak", "leak max", "leak px",
               "black px", "non-finite"]
     body = [[r["scene"], r["mode"], c.fmt(r.get("relmse")), c.fmt(r.get("mean_ratio"), 4),
@@ -216,14 +227,18 @@ def report(acc, thick, times, s, repeats) -> str:
     if times:
         names = list(dict.fromkeys(r["scene"] for r in times))
         body = []
+        modes = list(dict.fromkeys(r["mode"] for r in times))
         for n in names:
             by = {r["mode"]: r for r in times if r["scene"] == n}
-            d, p = by["default"]["time_s"], by["paper"]["time_s"]
-            body.append([n, c.fmt(1000 * p), c.fmt(1000 * d), c.fmt(d / p), str(by["default"]["load"])])
+            ms = [by[m]["time_s"] for m in modes]
+            ratio = (by["default"]["time_s"] / by["before"]["time_s"]
+                     if "before" in by and by["before"]["time_s"] else None)
+            body.append([n, *(c.fmt(1000 * t) if t else "-" for t in ms), c.fmt(ratio),
+                         str(by["default"]["load"])])
         w, h = s["time_size"]
         parts += [f"## Cost ({w}x{h}, warm end-to-end, median of {repeats}, one process)",
-                  c.markdown_table(["scene", "paper [ms]", "default [ms]", "ratio",
-                                    "load (before, after)"], body)]
+                  c.markdown_table(["scene", *(f"{m} [ms]" for m in modes),
+                                    "default / before", "load (before, after)"], body)]
     return "\n\n".join(parts)
 
 
@@ -235,12 +250,15 @@ def main(argv=None):
     p.add_argument("--random", type=int, default=0,
                    help="only the randomised stress set: this many seeds")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--time-size", default=None, help="WxH of the timing (default 640x480)")
     p.add_argument("--scenes", nargs="+", default=None)
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     s = settings_for(args.quick)
     if args.scenes:
         s["scenes"] = args.scenes
+    if args.time_size:
+        s["time_size"] = tuple(int(v) for v in args.time_size.lower().split("x"))
     out = c.output_dir(NAME, args.out, args.quick)
     if args.random:
         rows = random_stress(args.random, s["reference_steps"])
@@ -259,7 +277,8 @@ def main(argv=None):
     if times:
         c.write_csv(out / "timing.csv", times)
     c.write_json(out / "fourier_defaults.json", {"name": NAME, **s, "repeats": args.repeats,
-                                                 "modes": MODES, "black": BLACK},
+                                                 "modes": MODES, "time_modes": TIME_MODES,
+                                                 "black": BLACK},
                  acc, thickness=thick, timing=times)
     c.write_text(out / "table.md", text)
     return 0
