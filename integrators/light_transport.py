@@ -93,25 +93,73 @@ def box_segments(params, t_in, t_out, dist):
     inf) outside, inside and beyond the medium box (crossings ``t_in`` /
     ``t_out`` from :func:`segment_box`), each stopped ``BOX_EPS`` (relative
     to the scene size) short of the box: ray queries count the null-BSDF
-    box as a surface.  Empty pieces have ``b <= a``."""
+    box as a surface.  A segment that never enters the box (``t_out <=
+    t_in``) is one piece.  Empty pieces have ``b <= a``; the gaps left
+    around the crossings are :func:`crossing_gaps`."""
     eps = BOX_EPS * params.scene_extent
     far = dr.select(dr.isinf(dist), dr.largest(mi.Float), dist * (1 - BOX_EPS))
-    return ((mi.Float(0.0), t_in - eps),
+    miss = t_out <= t_in
+    return ((mi.Float(0.0), dr.select(miss, far, t_in - eps)),
             (dr.select(t_in > 0, t_in + eps, 0.0), dr.select(t_out < dist, t_out - eps, far)),
-            (t_out + eps, far))
+            (dr.select(miss, far, t_out + eps), far))
+
+
+def crossing_gaps(params, t_in, t_out, dist):
+    """The gaps ``(c, valid)`` that :func:`box_segments` leaves: ``[c - eps,
+    c + eps]`` around each box crossing ``c`` the segment makes (``eps =
+    BOX_EPS`` · scene size)."""
+    enters = t_out > t_in
+    return ((t_in, enters & (t_in > 0)), (t_out, enters & (t_out < dist)))
+
+
+def _gap_blocked(params, x, wo, c, far, active):
+    """Whether a non-null surface lies within ``BOX_EPS`` (relative) of the
+    box crossing at ``c`` on the segment ``x + s·wo``, ``s <= far``: two
+    short rays, one toward the crossing from each side, each stopped by the
+    first surface it meets -- the box itself (null BSDF: not a blocker) or
+    a surface in front of it."""
+    eps = BOX_EPS * params.scene_extent
+    lo = dr.maximum(c - eps, 0.0)
+    hi = dr.minimum(c + eps, far)
+    blocked = mi.Bool(False)
+    for start, d in ((lo, wo), (hi, -wo)):
+        ray = dr.zeros(mi.Ray3f)
+        ray.o, ray.d = x + wo * start, d
+        ray.maxt = dr.maximum(hi - lo, 0.0)
+        on = mi.Bool(active) & (hi > lo)
+        pi = params.scene.ray_intersect_preliminary(ray, active=on)
+        found = on & pi.is_valid()
+        null = mi.has_flag(pi.shape.bsdf().flags(), mi.BSDFFlags.Null)
+        blocked |= found & ~null
+    return blocked
 
 
 def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
     """Ray-traced V(x): True unless a non-null surface blocks ``x`` -> light,
-    tested piecewise around the medium box (:func:`box_segments`)."""
+    tested piecewise around the medium box (:func:`box_segments`).  Where
+    a surface reaches the box's boundary
+    (:meth:`~integrators.scene_params.SceneParams.surfaces_near_boundary`),
+    the gaps around the crossings inside its bounds are tested too
+    (:func:`_gap_blocked`): an occluder sticking out of the medium box
+    would otherwise let light through along the line where it crosses
+    the box (issue 13, seeds 43, 54, 98)."""
     blocked = mi.Bool(False)
-    for a, b in box_segments(params, t_in, t_out, dist):
+    pieces = box_segments(params, t_in, t_out, dist)
+    for a, b in pieces:
         ray = dr.zeros(mi.Ray3f)
         ray.o, ray.d = x + wo * a, wo
         ray.maxt = dr.maximum(b - a, 0.0)
         # ray_test's result is undefined on inactive lanes: mask it again
         seg_active = mi.Bool(active) & ~blocked & (b > a)
         blocked |= seg_active & params.scene.ray_test(ray, seg_active)
+    near = params.surfaces_near_boundary(BOX_EPS * params.scene_extent)
+    if near is not None:
+        lo, hi = mi.Point3f(point(near[0])), mi.Point3f(point(near[1]))
+        far = pieces[-1][1]
+        for c, valid in crossing_gaps(params, t_in, t_out, dist):
+            p = x + wo * c
+            on = mi.Bool(active) & ~blocked & valid & dr.all((p >= lo) & (p <= hi))
+            blocked |= on & _gap_blocked(params, x, wo, c, far, on)
     return ~blocked
 
 

@@ -113,6 +113,36 @@ class SceneParams:
         """Diagonal of the medium box: the length scale for relative epsilons."""
         return float(np.linalg.norm(self.medium.bounds_max - self.medium.bounds_min))
 
+    def surfaces_near_boundary(self, margin: float):
+        """(lo, hi): the bounding box of every non-null surface whose bounding
+        box comes within ``margin`` of the medium box's boundary (inside or
+        outside it), or None if none does; computed once per ``margin``.
+
+        Shadow rays are traced in pieces that stop short of the box
+        (:func:`~integrators.light_transport.box_segments`): only such a
+        surface can hide in the gaps around a box crossing."""
+        cache = self.__dict__.setdefault("_near_boundary", {})
+        if margin not in cache:
+            lo = self.medium.bounds_min - margin
+            hi = self.medium.bounds_max + margin
+            ilo = self.medium.bounds_min + margin
+            ihi = self.medium.bounds_max - margin
+            near = []
+            for shape in self.scene.shapes() if self.scene is not None else []:
+                bsdf = shape.bsdf()
+                if bsdf is not None and mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
+                    continue
+                box = shape.bbox()
+                smin, smax = _vec(box.min), _vec(box.max)
+                touches = np.all(smax >= lo) and np.all(smin <= hi)
+                inside = np.all(smin > ilo) and np.all(smax < ihi)
+                if touches and not inside:
+                    near.append((smin, smax))
+            cache[margin] = None if not near else (
+                np.min([a for a, _ in near], axis=0) - margin,
+                np.max([b for _, b in near], axis=0) + margin)
+        return cache[margin]
+
     @staticmethod
     def from_scene(scene, sensor=None) -> "SceneParams":
         if sensor is None or isinstance(sensor, int):
