@@ -107,7 +107,7 @@ from .capture import CameraCapture, sample_rng, seed_offset
 from .light_transport import (slabs, color, first_blocker, phase_eval, point,
                               sample_light, segment_box, segment_weight, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
-from .marching import auto_spacing, march
+from .marching import lit_spacing, march
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5
@@ -1206,7 +1206,7 @@ def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int)
     can hold much of the image's energy) take ``PEAK_STEP_FACTOR`` × the
     steps; they are a handful, the rest of the ring keeps ``steps``."""
     ring = cap.subset(queries.ring_sample)
-    spacing = auto_spacing(params)
+    spacing = lit_spacing(params)
     if params.light.kind == "directional" or not dr.width(queries.ring_sample):
         return march(params, ring, steps, shadow_map=None, spacing=spacing)
     cam = params.camera
@@ -1249,6 +1249,17 @@ def disagreeing_samples(queries: EpipolarQueries, values, tolerance: float) -> m
                        & (spread > tolerance * 1e-2 * peak))
 
 
+def union_samples(n: int, *parts: mi.UInt32) -> mi.UInt32:
+    """The sorted union of sample index lists ``parts`` (indices < ``n``)."""
+    parts = [p for p in parts if dr.width(p)]
+    if len(parts) <= 1:
+        return parts[0] if parts else dr.zeros(mi.UInt32, 0)
+    mask = dr.zeros(mi.Bool, n)
+    for p in parts:
+        dr.scatter(mask, True, p)
+    return dr.compress(mask)
+
+
 def remarch_samples(params, cap: CameraCapture, queries: EpipolarQueries, values,
                     samples: mi.UInt32, steps: int):
     """``values`` with the queries of camera ``samples`` replaced by the
@@ -1258,7 +1269,7 @@ def remarch_samples(params, cap: CameraCapture, queries: EpipolarQueries, values
     if not dr.width(samples):
         return values
     marched = march(params, cap.subset(samples), steps, shadow_map=None,
-                    spacing=auto_spacing(params))
+                    spacing=lit_spacing(params))
     fixed = dr.zeros(mi.Bool, queries.n_samples)
     dr.scatter(fixed, True, samples)
     per_sample = dr.zeros(mi.Color3f, queries.n_samples)

@@ -22,9 +22,11 @@ import drjit as dr
 import mitsuba as mi
 
 from .epipolar_setup import (assign_queries, choose_slices, disagreeing_samples,
-                             epipolar_frame_of, march_ring, remarch_samples, to_samples)
+                             epipolar_frame_of, march_ring, remarch_samples, to_samples,
+                             union_samples)
+from .epipolar_local_light import cone_samples, resolve_lit_cone
 from .integrand_svd import SAMPLES
-from .row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries,
+from .row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries, whole_queries,
                          reuse_rectification)
 from .template import EpiscatterIntegrator, read_bool, read_number
 
@@ -84,7 +86,10 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         """(frame, slices, plan): the rows the camera samples are sorted into
         (hook): Baran's epipolar slices (§3, §8), no plan."""
         frame = epipolar_frame_of(params)
-        return frame, choose_slices(frame, self.slices, self.slice_spacing), None
+        slices = choose_slices(frame, self.slices, self.slice_spacing)
+        if not self.slices:
+            slices = resolve_lit_cone(params, frame, slices)
+        return frame, slices, None
 
     def rectify(self, params, cap):
         """Stage ``rectify``: (queries, plan) of the whole frame -- the rows
@@ -176,9 +181,16 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         a narrow spot beam running along the slices lies between them, and
         the blend of a lit and a dark answer estimates neither side.  Only
         with ``slice_interpolation`` (a nearest-slice query has no second
-        answer); ``stats["remarched"]`` counts the samples."""
+        answer); ``stats["remarched"]`` counts the samples.  A narrow spot
+        light's few lit samples are marched too
+        (:func:`~integrators.epipolar_local_light.cone_samples`, chosen on
+        the whole frame so that a partial render marches what the full one
+        does)."""
         with self.stage("ring") as keep:
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
+            if params.light.kind == "spot":
+                remarch = union_samples(queries.n_samples, remarch,
+                                        cone_samples(params, queries, whole_queries(queries)))
             values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps)
             keep.append(values)
         self.record(remarched=dr.width(remarch))

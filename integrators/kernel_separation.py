@@ -22,7 +22,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .epipolar_setup import gray, light_side_gains
+from .epipolar_setup import gray, light_side_extinction, light_side_gains
 from .integrand_svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_table import nystrom_sums, tabulated_terms
 
@@ -110,25 +110,30 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     own β (padded slots: 0) of any light model's kernel (module doc);
     C = 1 for grey σt.  The automatic rank meets ``tol`` after the light
     side's largest amplification (:func:`~integrators.epipolar_setup.light_side_gains`
-    of ``separation.light_side_path``), per channel.  ``points``: (count,
-    points) at which A is evaluated instead of the separation's own
-    ``kernel_points`` (e.g. the Gauss nodes of a projective map's texels,
-    :func:`~integrators.fourier_setup.gauss_nodes`): A is then
-    (n, count / n, C, N), in the points' order.
+    of ``separation.light_side_path``), per channel, and -- for a
+    separation with ``sum_error`` (the directional light's) -- after the
+    rows' actual sums are checked (:func:`checked_tolerances`).
+    ``points``: (count, points) at which A is evaluated instead of the
+    separation's own ``kernel_points`` (e.g. the Gauss nodes of a
+    projective map's texels, :func:`~integrators.fourier_setup.gauss_nodes`):
+    A is then (n, count / n, C, N), in the points' order.
 
     Some rows of a frame (a partial render: ``queries`` a
     :class:`~integrators.row_subset.RowSubset`, ``rays`` its rows' light
-    rays, ``frame_rays`` the whole frame's): the kernel is separated on the
-    whole frame (``queries.whole_frame``, ``frame_rays``) and its terms are
-    evaluated at these rows alone (tabulated as the whole frame's would
-    be), equal to the whole frame's A and B at these rows."""
+    rays, ``frame_rays`` the whole frame's): the kernel is separated (and
+    checked) on the whole frame (``queries.whole_frame``, ``frame_rays``)
+    and its terms are evaluated at these rows alone (tabulated as the whole
+    frame's would be), equal to the whole frame's A and B at these rows."""
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
     channels = [0] if gray(sigma_t) else [0, 1, 2]
     whole, whole_rays = queries.whole_frame, rays if frame_rays is None else frame_rays
     gains = light_side_gains(sigma_t, separation.light_side_path(whole, whole_rays))
-    kernels = [separation.channel(params, whole, whole_rays, float(sigma_t[c]), rank,
-                                  tol / gains[c])
-               for c in channels]
+    tols = [tol / gains[c] for c in channels]
+    kernels = [separation.channel(params, whole, whole_rays, float(sigma_t[c]), rank, t)
+               for c, t in zip(channels, tols)]
+    if not rank and hasattr(separation, "sum_error"):
+        kernels = checked_tolerances(separation, params, whole, whole_rays, channels, kernels,
+                                     tols)
     N = max(k.N for k in kernels)
     C = len(kernels)
     own = points is None
@@ -152,6 +157,47 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
         d = count // queries.n
     return (mi.TensorXf(A, shape=(queries.n, d, C, N)),
             mi.TensorXf(B, shape=(queries.n, queries.r, C, N)))
+
+
+#: re-separations :func:`checked_tolerances` may make
+CHECK_ROUNDS = 2
+#: the tightened tolerance's margin below the measured error
+CHECK_MARGIN = 2.0
+
+
+def checked_tolerances(separation, params, queries, rays, channels, kernels, tols):
+    """The channels' separated kernels, re-separated at a tighter tolerance
+    where the rows' sums would be off by more than their tolerance.
+
+    The automatic rank bounds each view ray's error relative to ∫K dγ.
+    The sweep sums K·L·V, and where the light factor L grows along γ as
+    fast as K decays (a view ray toward the light in a thick medium: the
+    camera-side path grows as the light-side path shrinks) the sum is
+    e^{-10…-20} of ∫K dγ and all error (issue 13, seeds 72, 86).  Here
+    ``separation.sum_error`` measures, for each row's first and last query
+    and every light ray, Σ |K̃ − K|·L against the frame's largest
+    unshadowed sum; a channel whose ratio exceeds its tolerance is
+    separated again at tolerance / (ratio · CHECK_MARGIN), at most
+    CHECK_ROUNDS times (and at most MAX_RANK terms)."""
+    from .integrand_svd import MAX_RANK
+
+    kernels = list(kernels)
+    tols = list(tols)
+    for _ in range(CHECK_ROUNDS):
+        redo = False
+        for k, c in enumerate(channels):
+            if kernels[k].N >= MAX_RANK:
+                continue
+            err = separation.sum_error(params, queries, rays, kernels[k])
+            if err > tols[k]:
+                tols[k] = tols[k] * tols[k] / (err * CHECK_MARGIN)
+                kernels[k] = separation.channel(params, queries, rays,
+                                                float(np.asarray(params.medium.sigma_t)[c]),
+                                                0, tols[k])
+                redo = True
+        if not redo:
+            break
+    return kernels
 
 
 @dataclass(frozen=True)
@@ -218,6 +264,44 @@ class DirectionalSeparation:
     def kernel_points(self, queries, rays):
         _, gamma = rays.positions(0.0)   # cell starts: φ in the query terms averages K
         return dr.width(gamma), gamma
+
+    def sum_error(self, params, queries, rays, kern: DirectionalChannel) -> float:
+        """max over rows of Σ_γ |K̃ − K|·L (K̃: ``kern``'s separated kernel)
+        at the row's first and last query (smallest, largest β), over the
+        largest Σ_γ K·L of any of them; each weighted by its row's
+        e^{-σt h_ref} Δγ / sin β (:func:`checked_tolerances`)."""
+        n, r = queries.n, queries.r
+        if not n or getattr(rays, "h", None) is None:
+            return 0.0
+        st = kern.sigma_t
+        row = dr.arange(mi.UInt32, n)
+        last = dr.maximum(mi.UInt32(queries.r_count), 1) - 1
+        beta_q = queries.padded(queries.beta, 0.0)
+        s, gamma = rays.positions(0.0)
+        L = light_side_extinction(st, rays.h, dr.gather(mi.Float, rays.h_ref, s))
+        h_ref = rays.h_ref
+        h_lo = float(dr.min(h_ref)[0])
+        a_terms = kern.a_terms(gamma, dr.width(gamma))
+        worst, scale = 0.0, 0.0
+        for col in (dr.zeros(mi.UInt32, n), last):
+            beta = dr.gather(mi.Float, beta_q, row * r + col)
+            tan_half = dr.tan(0.5 * beta)
+            b_terms = kern.b_terms(tan_half)
+            tan_s = dr.gather(mi.Float, tan_half, s)
+            approx = dr.zeros(mi.Float, dr.width(gamma))
+            for i in range(kern.N):
+                approx += a_terms[i] * dr.gather(mi.Float, b_terms[i], s)
+            exact = dr.exp(-st * gamma * tan_s)
+            err = dr.zeros(mi.Float, n)
+            tot = dr.zeros(mi.Float, n)
+            dr.scatter_reduce(dr.ReduceOp.Add, err, dr.abs(approx - exact) * L, s)
+            dr.scatter_reduce(dr.ReduceOp.Add, tot, exact * L, s)
+            w = (dr.exp(-st * (h_ref - h_lo)) * rays.delta_gamma
+                 / dr.maximum(dr.sin(beta), 1e-6))
+            used = mi.UInt32(queries.r_count) > 0
+            worst = max(worst, float(dr.max(dr.select(used, err * w, 0.0))[0]))
+            scale = max(scale, float(dr.max(dr.select(used, tot * w, 0.0))[0]))
+        return worst / scale if scale > 0.0 else 0.0
 
     def to_rows(self, A, queries, rays, CN: int):
         return A

@@ -23,7 +23,9 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
                            random offset per ray (default false: midpoints)
 ``spacing``                ``uniform`` segments, ``equiangular`` (uniform in
                            the angle seen from a point/spot light: short
-                           segments where 1/r² peaks) or ``auto`` (default:
+                           segments where 1/r² peaks), ``cone`` (spot:
+                           equiangular inside the spot's cone alone) or
+                           ``auto`` (default:
                            equiangular for point/spot, uniform otherwise)
 ``march``                  ``full`` (default) or ``hybrid`` (Wyman & Ramsey
                            2008, :mod:`integrators.hybrid_march`: exact
@@ -50,7 +52,8 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
                                                 minimum=1, maximum=32768, integer=True)
         self.jitter = read_bool(props, "jitter", False)
-        self.spacing = read_choice(props, "spacing", "auto", ("auto", "uniform", "equiangular"))
+        self.spacing = read_choice(props, "spacing", "auto",
+                                   ("auto", "uniform", "equiangular", "cone"))
         self.march = read_choice(props, "march", "full", ("full", "hybrid"))
         self.volume_boxes = read_number(props, "volume_boxes", 8, minimum=1, integer=True)
         if self.march == "hybrid" and self.visibility != "exact":
