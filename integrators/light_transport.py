@@ -112,26 +112,38 @@ def crossing_gaps(params, t_in, t_out, dist):
     return ((t_in, enters & (t_in > 0)), (t_out, enters & (t_out < dist)))
 
 
-def _gap_blocked(params, x, wo, c, far, active):
-    """Whether a non-null surface lies within ``BOX_EPS`` (relative) of the
-    box crossing at ``c`` on the segment ``x + s·wo``, ``s <= far``: two
-    short rays, one toward the crossing from each side, each stopped by the
-    first surface it meets -- the box itself (null BSDF: not a blocker) or
-    a surface in front of it."""
+def _gap_hit(params, x, wo, c, far, active):
+    """(found, s): a non-null surface within ``BOX_EPS`` (relative) of the
+    box crossing at ``c`` on the segment ``x + s·wo``, ``s <= far``, and
+    its distance ``s``: two short rays, one toward the crossing from each
+    side, each stopped by the first surface it meets -- the box itself
+    (null BSDF: not a blocker) or a surface in front of it (the forward
+    ray's hit first: the backward ray's lies behind the crossing)."""
     eps = BOX_EPS * params.scene_extent
     lo = dr.maximum(c - eps, 0.0)
     hi = dr.minimum(c + eps, far)
-    blocked = mi.Bool(False)
-    for start, d in ((lo, wo), (hi, -wo)):
+    found_any = mi.Bool(False)
+    s_hit = mi.Float(hi)
+    for start, sign in ((lo, 1.0), (hi, -1.0)):
         ray = dr.zeros(mi.Ray3f)
-        ray.o, ray.d = x + wo * start, d
+        ray.o, ray.d = x + wo * start, wo * sign
         ray.maxt = dr.maximum(hi - lo, 0.0)
-        on = mi.Bool(active) & (hi > lo)
+        on = mi.Bool(active) & (hi > lo) & ~found_any
         pi = params.scene.ray_intersect_preliminary(ray, active=on)
-        found = on & pi.is_valid()
         null = mi.has_flag(pi.shape.bsdf().flags(), mi.BSDFFlags.Null)
-        blocked |= found & ~null
-    return blocked
+        found = on & pi.is_valid() & ~null
+        s_hit = dr.select(found, start + sign * pi.t, s_hit)
+        found_any |= found
+    return found_any, s_hit
+
+
+def _near_boundary_bounds(params):
+    """(lo, hi) Point3f of :meth:`~integrators.scene_params.SceneParams.surfaces_near_boundary`
+    at the gap width, or None."""
+    near = params.surfaces_near_boundary(BOX_EPS * params.scene_extent)
+    if near is None:
+        return None
+    return mi.Point3f(point(near[0])), mi.Point3f(point(near[1]))
 
 
 def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
@@ -140,7 +152,7 @@ def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
     a surface reaches the box's boundary
     (:meth:`~integrators.scene_params.SceneParams.surfaces_near_boundary`),
     the gaps around the crossings inside its bounds are tested too
-    (:func:`_gap_blocked`): an occluder sticking out of the medium box
+    (:func:`_gap_hit`): an occluder sticking out of the medium box
     would otherwise let light through along the line where it crosses
     the box (issue 13, seeds 43, 54, 98)."""
     blocked = mi.Bool(False)
@@ -152,14 +164,14 @@ def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
         # ray_test's result is undefined on inactive lanes: mask it again
         seg_active = mi.Bool(active) & ~blocked & (b > a)
         blocked |= seg_active & params.scene.ray_test(ray, seg_active)
-    near = params.surfaces_near_boundary(BOX_EPS * params.scene_extent)
+    near = _near_boundary_bounds(params)
     if near is not None:
-        lo, hi = mi.Point3f(point(near[0])), mi.Point3f(point(near[1]))
+        lo, hi = near
         far = pieces[-1][1]
         for c, valid in crossing_gaps(params, t_in, t_out, dist):
             p = x + wo * c
             on = mi.Bool(active) & ~blocked & valid & dr.all((p >= lo) & (p <= hi))
-            blocked |= on & _gap_blocked(params, x, wo, c, far, on)
+            blocked |= on & _gap_hit(params, x, wo, c, far, on)[0]
     return ~blocked
 
 
@@ -192,12 +204,32 @@ def first_blocker(params, origin, d):
     (each stopped ``BOX_EPS`` short of the box), whose origins stay exactly
     on the line: re-spawning at the box (:func:`~integrators.capture.first_surface`)
     offsets the ray along the box normal, which moves grazing hits by
-    ~1e-4·extent/tan(angle)."""
+    ~1e-4·extent/tan(angle).  The gaps around the crossings are tested
+    where a surface reaches the box (:func:`_gap_hit`, as in
+    :func:`visible_exact`)."""
     inf = dr.full(mi.Float, dr.inf, dr.width(origin.x))
     _, t_in, t_out = segment_box(params, origin, d, inf)
     hit = mi.Bool(False)
     p = mi.Point3f(origin)
-    for a, b in box_segments(params, t_in, t_out, inf):
+    pieces = box_segments(params, t_in, t_out, inf)
+    near = _near_boundary_bounds(params)
+    gaps = crossing_gaps(params, t_in, t_out, inf) if near is not None else ()
+    # in order along the ray: piece, gap at t_in, piece, gap at t_out, piece
+    steps = [("piece", pieces[0])]
+    for k in range(2):
+        if gaps:
+            steps.append(("gap", gaps[k]))
+        steps.append(("piece", pieces[k + 1]))
+    for kind, (a, b) in steps:
+        if kind == "gap":
+            c, valid = a, b
+            q = origin + d * c
+            active = ~hit & valid & dr.all((q >= near[0]) & (q <= near[1]))
+            found, s_hit = _gap_hit(params, origin, d, c, pieces[-1][1], active)
+            found &= active
+            p = dr.select(found, origin + d * s_hit, p)
+            hit |= found
+            continue
         active = ~hit & (b > a)
         ray = mi.Ray3f(origin + d * a, d)
         ray.maxt = dr.maximum(b - a, 0.0)
