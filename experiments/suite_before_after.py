@@ -1,0 +1,115 @@
+"""``epipolar_tree`` at its defaults on the suite, before and after a change
+(issue 13, "the suite's accuracy and speed at defaults unchanged or better").
+
+Each scene is measured by two processes in turn, one per source tree
+(``--before TREE``: e.g. a detached worktree of main; the other: this
+tree), each importing its own ``integrators``: a warm-up render, then
+``--repeats`` timed renders (median), 1 spp at the **pixel centres**, against
+the cached exact working reference (raymarch visibility=exact, 2048 steps,
+:func:`experiments.common.scene_with_reference`; both trees read the same
+file).  Errors: scale-free relMSE (eps 1e-2·mean(ref)²), mean ratio, max
+|error| / reference peak, HDR-FLIP, of the full image.  The order of the
+two processes alternates from scene to scene.
+
+``python -m experiments.suite_before_after --before /work/wt/h13-main
+[--scenes ...] [--out results/stability]`` writes
+``suite_before_after.json`` and ``.md``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+SUITE = ["nave_offscreen", "nave_onscreen", "grove", "terrain", "spot_room", "point_fog", "beam"]
+WIDTH, HEIGHT = 640, 480
+
+
+def measure(scene_name: str, repeats: int) -> dict:
+    """This process's tree: errors and median times of epipolar_tree at its
+    defaults on one suite scene."""
+    from experiments import common as c
+
+    s = {"width": WIDTH, "height": HEIGHT, "reference_steps": c.REFERENCE_STEPS}
+    scene, ref, _ = c.scene_with_reference(scene_name, s, False)
+    t = c.time_renders(scene, {"tree": c.build("epipolar_tree", {})}, repeats=repeats)["tree"]
+    e = c.errors(t["image"], ref, blocks=(1,))
+    return {"scene": scene_name, "relmse": e["relmse_b1"], "mean_ratio": e["mean_ratio_b1"],
+            "max_err_over_peak": e["max_error_over_peak_b1"], "flip": e["flip_b1"],
+            "time_s": t["time_s"], "scattering_s": t["scattering_s"],
+            "load": c.load_average()}
+
+
+def run_tree(tree: str, scene: str, repeats: int) -> dict:
+    """:func:`measure` in a subprocess importing ``tree``'s packages (this
+    file run with ``--measure`` from ``tree``)."""
+    env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure", scene,
+                          "--repeats", str(repeats)], cwd=tree, env=env, capture_output=True,
+                         text=True, check=True).stdout
+    line = [x for x in out.splitlines() if x.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+def table(rows: list[dict]) -> str:
+    def f(x, d=3):
+        return f"{x:.{d}g}"
+    out = ["| scene | relMSE before -> after | mean ratio before -> after | max err/peak "
+           "before -> after | FLIP before -> after | time before / after [s] | ratio | "
+           "scattering ratio |", "|---|---|---|---|---|---|---|---|"]
+    by = {}
+    for r in rows:
+        by.setdefault(r["scene"], {})[r["version"]] = r
+    for scene, v in by.items():
+        b, a = v["before"], v["after"]
+        out.append(f"| {scene} | {f(b['relmse'])} -> {f(a['relmse'])} | {b['mean_ratio']:.4f} -> "
+                   f"{a['mean_ratio']:.4f} | {f(b['max_err_over_peak'])} -> "
+                   f"{f(a['max_err_over_peak'])} | {b['flip']:.4f} -> {a['flip']:.4f} | "
+                   f"{b['time_s']:.2f} / {a['time_s']:.2f} | {a['time_s'] / b['time_s']:.2f} | "
+                   f"{a['scattering_s'] / b['scattering_s']:.2f} |")
+    return "\n".join(out)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--before", help="source tree of the 'before' version")
+    p.add_argument("--measure", metavar="SCENE", help=argparse.SUPPRESS)
+    p.add_argument("--after", default=str(Path(__file__).resolve().parents[1]),
+                   help="source tree of the 'after' version (default: this one)")
+    p.add_argument("--scenes", nargs="+", default=SUITE)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "results/stability"))
+    args = p.parse_args(argv)
+    if args.measure:
+        print("RESULT " + json.dumps(measure(args.measure, args.repeats)), flush=True)
+        return
+    if not args.before:
+        p.error("--before TREE is required")
+    rows = []
+    for i, scene in enumerate(args.scenes):
+        order = [("before", args.before), ("after", args.after)]
+        for version, tree in (order if i % 2 == 0 else order[::-1]):
+            r = {**run_tree(tree, scene, args.repeats), "version": version, "tree": tree}
+            print(json.dumps(r), flush=True)
+            rows.append(r)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "suite_before_after.json").write_text(json.dumps(rows, indent=1))
+    text = "\n\n".join([
+        "# epipolar_tree at its defaults on the suite, before and after",
+        f"{WIDTH}x{HEIGHT}, 1 spp at **pixel centres**, against the exact working reference "
+        "(raymarch visibility=exact, 2048 steps, cached). Scale-free relMSE (eps 1e-2 x "
+        "mean(ref)^2), mean ratio, max |error| / reference peak, HDR-FLIP; end-to-end and "
+        f"scattering time: median of {args.repeats} warm runs, OPENBLAS_NUM_THREADS=1, the two "
+        "versions in alternating processes per scene (experiments.suite_before_after). "
+        f"Before: {args.before}; after: {args.after}. Load averages in the JSON.",
+        table(rows)])
+    (out / "suite_before_after.md").write_text(text + "\n")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
