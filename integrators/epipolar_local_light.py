@@ -209,8 +209,9 @@ def resolve_lit_cone(params, frame, slices):
         return slices
     split = min(MAX_LIT_SPLIT, math.ceil(MIN_LIT_SLICES / count))
     S = slices.count
-    near = lit | np.roll(lit, 1) | np.roll(lit, -1)
-    if not slices.wraps:
+    if slices.wraps:
+        near = lit | np.roll(lit, 1) | np.roll(lit, -1)
+    else:
         near = lit | np.r_[lit[1:], False] | np.r_[False, lit[:-1]]
     pts = [slices.points]
     f = (np.arange(1, split) / split)[:, None]
