@@ -77,12 +77,16 @@ def stage_ms(timings: dict) -> dict:
     return {f"{k}_ms": 1e3 * float(timings[k]) for k in STAGES if k in timings}
 
 
-def scaled_run(doc: str, settings_for, name: str, argv, scenes: list, quick_scenes: list):
-    """(args, settings, repeats, out) of an experiment with ``--scale``."""
+def scaled_run(doc: str, settings_for, name: str, argv, scenes: list, quick_scenes: list,
+               add_arguments=None):
+    """(args, settings, repeats, out) of an experiment with ``--scale``
+    (``add_arguments(parser)``: the experiment's own options)."""
     from . import common as c
 
     p = c.base_parser(doc, scenes, quick_scenes)
     p.add_argument("--scale", type=float, default=None, help="resolution factor")
+    if add_arguments is not None:
+        add_arguments(p)
     args = p.parse_args(argv)
     s = settings_for(args.quick)
     if args.scale:

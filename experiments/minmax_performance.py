@@ -28,6 +28,8 @@ Writes ``results/minmax_performance/``: ``runs.csv``, ``runs.json``,
 """
 from __future__ import annotations
 
+import argparse
+
 from . import common as c
 from . import minmax_common as mc
 
@@ -139,9 +141,31 @@ def report(rows, s) -> str:
     return c.markdown_table(header, body) + "\n\n" + "\n".join(notes) + "\n"
 
 
+def talk_size(text: str) -> tuple[int, int]:
+    """``"1024x768"`` -> (1024, 768), one of the talk's table sizes."""
+    try:
+        size = tuple(int(v) for v in text.lower().split("x"))
+    except ValueError:
+        size = ()
+    if size not in TALK:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not one of the talk's sizes: "
+            + ", ".join(f"{w}x{h}" for w, h in TALK))
+    return size
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--sizes", nargs="+", type=talk_size, default=None,
+                   help="talk table sizes to run (default: all), e.g. 1024x768")
+    p.add_argument("--no-directional", action="store_true",
+                   help="skip the directional test (1280x960, 4096² map)")
+
+
 def main(argv=None):
     args, s, repeats, out = mc.scaled_run(__doc__, settings_for, NAME, argv, [SPOT_SCENE],
-                                          [SPOT_SCENE])
+                                          [SPOT_SCENE], add_arguments)
+    if args.sizes:
+        s["sizes"] = list(args.sizes)
     rows = []
     for size in s["sizes"]:
         rows += measure(SPOT_SCENE, size, jobs_for(size, s), TALK[size], s, repeats,
@@ -155,7 +179,9 @@ def main(argv=None):
                         "steps": s["brute_steps"], "shadowmap_resolution": d["map"]}}
     talk_dir = {"high_quality_directional": (d["slices"], d["samples"], d["map"], d["talk_ms"],
                                              None)}
-    rows += measure(DIRECTIONAL_SCENE, d["size"], dir_jobs, talk_dir, s, repeats, not args.quick)
+    if not args.no_directional:
+        rows += measure(DIRECTIONAL_SCENE, d["size"], dir_jobs, talk_dir, s, repeats,
+                        not args.quick)
     text = report(rows, s)
     print(text)
     settings = {"name": NAME, **s, "repeats": repeats, "conventions": mc.CONVENTION,

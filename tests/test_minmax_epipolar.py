@@ -426,6 +426,19 @@ def test_experiments_quick(tmp_path, cache, name):
         assert (tmp_path / f).is_file()
 
 
+def test_performance_sizes_are_the_talks(tmp_path, cache):
+    """``--sizes`` takes only the talk's table sizes (a clear error names
+    them); with ``--no-directional`` only those spot tables are run."""
+    import argparse
+    from experiments import minmax_performance as mp
+    assert mp.talk_size("1024x768") == (1024, 768)
+    with pytest.raises(argparse.ArgumentTypeError, match="1366x768"):
+        mp.talk_size("1000x700")
+    rows = mp.main(["--quick", "--sizes", "1024x768", "--no-directional", "--out",
+                    str(tmp_path)])
+    assert rows and {r["talk_size"] for r in rows} == {"1024x768"}
+
+
 @pytest.mark.parametrize("light", ["directional", "spot"])
 def test_resampled_tree_never_changes_the_per_texel_march(make_scene, light):
     """Conservative 2×2-filter bounds: the tree gives the per-texel PCF
