@@ -347,7 +347,11 @@ def make_tasks(scenes, methods, budget: str, conventions, defines_of, references
                 settings = (list(grids[method]) if grids and method in grids
                             else settings_grid(method, budget, conv, pixels))
                 if conv == "pixel_centre":
-                    settings = [s for s in settings if int(s.get("spp", 1) or 1) == 1]
+                    # one sample per pixel, said explicitly: a setting without
+                    # ``spp`` would render at the scene's sampler count (the
+                    # suite's scenes ask for 64), 64× the pixel-centre work
+                    settings = [{**s, "spp": 1} for s in settings
+                                if int(s.get("spp", 1) or 1) == 1]
                 if settings:
                     tasks.append({"scene": os.path.abspath(scene), "defines": defines,
                                   "convention": conv, "method": method, "settings": settings,
