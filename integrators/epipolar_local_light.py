@@ -233,8 +233,7 @@ CONE_MARCH_FRACTION = 1.0 / 64
 CONE_MARCH_MIN = 256
 
 
-def cone_samples(params, queries: EpipolarQueries, whole: EpipolarQueries | None = None
-                 ) -> mi.UInt32:
+def cone_samples(params, queries: EpipolarQueries) -> mi.UInt32:
     """The camera samples a narrow spot light's cone reaches -- a query of
     theirs lies in a slice inside the cone (:func:`cone_interval`) and its
     view ray reaches the cone's γ-interval -- when there are few of them
@@ -244,9 +243,9 @@ def cone_samples(params, queries: EpipolarQueries, whole: EpipolarQueries | None
     to a few percent of its energy (issue 13, seeds 128, 216, 227: mean
     −3 … +11 %); the tree marches them like the ring
     (:func:`~integrators.epipolar_setup.remarch_samples`), at the cost of
-    a few pixels' ring steps.  ``whole``: the whole frame's queries when
-    ``queries`` are some of its rows (the budget is the frame's, so a
-    partial render marches what the full render does)."""
+    a few pixels' ring steps.  The budget is decided on the whole frame
+    (``queries.whole_frame``), so a partial render's rows march what the
+    full render does."""
     none = dr.zeros(mi.UInt32, 0)
     if params.light.kind != "spot" or not queries.count:
         return none
@@ -258,11 +257,12 @@ def cone_samples(params, queries: EpipolarQueries, whole: EpipolarQueries | None
         hit = dr.zeros(mi.Bool, q.n_samples)
         dr.scatter(hit, True, q.sample, reach)
         return dr.compress(hit)
-    frame_wide = reached(whole if whole is not None else queries)
+    whole = queries.whole_frame
+    frame_wide = reached(whole)
     budget = max(CONE_MARCH_MIN, CONE_MARCH_FRACTION * queries.n_samples)
     if dr.width(frame_wide) > budget:
         return none
-    return frame_wide if whole is None or whole is queries else reached(queries)
+    return frame_wide if whole is queries else reached(queries)
 
 
 def light_ray_range(params, queries: EpipolarQueries):

@@ -26,7 +26,7 @@ from .epipolar_setup import (assign_queries, choose_slices, disagreeing_samples,
                              union_samples)
 from .epipolar_local_light import cone_samples, resolve_lit_cone
 from .integrand_svd import SAMPLES
-from .row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries, whole_queries,
+from .row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries,
                          reuse_rectification)
 from .template import EpiscatterIntegrator, read_bool, read_number
 
@@ -188,9 +188,7 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         does)."""
         with self.stage("ring") as keep:
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
-            if params.light.kind == "spot":
-                remarch = union_samples(queries.n_samples, remarch,
-                                        cone_samples(params, queries, whole_queries(queries)))
+            remarch = union_samples(queries.n_samples, remarch, cone_samples(params, queries))
             values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps)
             keep.append(values)
         self.record(remarched=dr.width(remarch))

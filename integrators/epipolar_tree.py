@@ -19,7 +19,7 @@ from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibil
                              last_interval_visibility, rectified_depth, sweep_magnitude)
 from .light_models import light_model
 from .partial_sum_tree import integrate_slices
-from .row_subset import frame_choices, take_light_rays, take_rows, whole_queries
+from .row_subset import frame_choices, take_light_rays, take_rows
 from .epipolar_template import EpipolarIntegrator
 from .template import read_bool, read_choice, read_number
 
@@ -208,7 +208,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         model = light_model(params)
         # frame-wide choices on the whole frame's queries, then the rows of
         # ``queries`` (all of them, or a partial render's RowSubset)
-        whole = whole_queries(queries)
+        whole = queries.whole_frame
         frame_side = self.light_side(params, cap, whole, model)
         self.record(frame_choices=frame_choices(whole, frame_side.rays))
         side = frame_side.of_rows(queries)

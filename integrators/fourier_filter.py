@@ -41,7 +41,7 @@ from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             series_visibility, shadowed_sum, texel_blocker_angles,
                             texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
-from .row_subset import frame_choices, take_light_rays, take_rows, whole_queries
+from .row_subset import frame_choices, take_light_rays, take_rows
 from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
@@ -420,7 +420,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         # frame-wide choices on the whole frame's queries (texel count, light
         # rays, per-light-ray factor, separated kernel, reference-ray length),
         # then the rows of ``queries`` (all, or a partial render's RowSubset)
-        whole = whole_queries(queries)
+        whole = queries.whole_frame
         with self.stage("rectify"):
             d = self.light_rays or auto_texels(params, whole, cap)
             if plan is not None:    # Klehm §4.2: texels of equal steps in 1/x

@@ -56,12 +56,6 @@ class RowSubset(EpipolarQueries):
         return self.whole
 
 
-def whole_queries(queries: EpipolarQueries) -> EpipolarQueries:
-    """The queries of the whole frame (``queries`` itself unless a subset):
-    the frame-wide choices are made on them."""
-    return queries.whole_frame
-
-
 def restrict_queries(queries: EpipolarQueries, rows: mi.UInt32,
                      ring_sample: mi.UInt32) -> RowSubset:
     """The queries of ``rows`` (sorted row numbers of ``queries``), renumbered
