@@ -1,8 +1,8 @@
 """Time-vs-error frontiers of every method (DESIGN §5) and the error budget.
 
 A method's quality knobs span a settings grid (:func:`settings_grid`, one
-registry entry per method: :func:`register_method`, so ``minmax_epipolar``
-plugs in by name).  Every setting is timed honestly (warm-up render, then the
+registry entry per method, :data:`GRIDS`; a new method plugs in by name
+with :func:`register_method`).  Every setting is timed honestly (warm-up render, then the
 median of ``repeats`` interleaved timed renders, each finished with
 ``dr.eval`` + ``dr.sync_thread``) and its error measured with
 :func:`episcatter.metrics.scale_free_relmse` in one of two conventions
@@ -76,10 +76,13 @@ def _raymarch_grid(budget: str, convention: str) -> list[dict]:
                          shadowmap_resolution=[1024, 2048])
                     + grid(visibility=["shadowmap"], steps=[2048], shadowmap_resolution=[2048])
                     + grid(visibility=["exact"], steps=[64, 256]))
-        steps = [32, 64, 128, 256, 512, 1024]
-        return (grid(visibility=["shadowmap"], steps=steps + [2048],
-                     shadowmap_resolution=[512, 1024, 2048, 4096])
-                + grid(visibility=["exact"], steps=steps))
+        # full: the settings that made the 640x480 frontiers, extended towards
+        # 1e-5 (finer maps, more steps); exact visibility only where it is
+        # affordable at 1280x960
+        return (grid(visibility=["shadowmap"], steps=[64, 256, 1024, 2048],
+                     shadowmap_resolution=[2048, 4096])
+                + grid(visibility=["shadowmap"], steps=[4096], shadowmap_resolution=[4096])
+                + grid(visibility=["exact"], steps=[64, 256]))
     if budget == "quick":
         return (grid(visibility=["shadowmap"], steps=[64, 256], shadowmap_resolution=[2048],
                      jitter=[True], spp=[1, 4, 16])
@@ -93,12 +96,18 @@ def _raymarch_grid(budget: str, convention: str) -> list[dict]:
 def _tree_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
         if budget == "quick":
-            return (grid(slice_spacing=[0.5, 1.0, 2.0], light_rays=[0, 512, 1024])
+            return ([{}]      # the defaults: where a user starts
+                    + grid(slice_spacing=[0.5, 1.0, 2.0], light_rays=[0, 512, 1024])
                     + grid(slice_spacing=[4.0], light_rays=[0])
                     + grid(slice_spacing=[1.0, 2.0, 4.0], slice_interpolation=[False])
                     + grid(slice_spacing=[2.0], prefilter=[1]))
-        return grid(slice_spacing=[0.5, 1.0, 2.0, 4.0], light_rays=[0, 256, 512],
-                    prefilter=[1, 4], slice_interpolation=[True, False])
+        return ([{}]
+                + grid(slice_spacing=[0.5, 1.0, 2.0, 4.0], light_rays=[0, 1024],
+                       prefilter=[4], slice_interpolation=[True])
+                + grid(slice_spacing=[2.0, 4.0], light_rays=[0], prefilter=[4],
+                       slice_interpolation=[False])
+                + grid(slice_spacing=[2.0], light_rays=[0], prefilter=[1],
+                       slice_interpolation=[True]))
     if budget == "quick":
         return grid(slice_spacing=[1.0, 2.0], spp=[1, 4, 16])
     return grid(slice_spacing=[1.0, 2.0, 4.0], spp=[1, 4, 16, 64])
@@ -107,12 +116,31 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
 def _fourier_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
         if budget == "quick":
-            return (grid(coefficients=[16, 32, 64, 128], weights=["reference_ray", "exact"])
+            return ([{}]
+                    + grid(coefficients=[16, 32, 64, 128], weights=["reference_ray", "exact"])
                     + grid(coefficients=[128], weights=["exact"], light_rays=[512, 1024]))
-        return grid(coefficients=[16, 32, 64, 128], light_rays=[0, 512],
-                    weights=["average", "reference_ray", "exact"])
-    return grid(coefficients=[32, 128], weights=["exact"],
-                spp=[1, 4] if budget == "quick" else [1, 4, 16])
+        return ([{}]
+                + grid(coefficients=[32, 64, 128, 256], light_rays=[0],
+                       weights=["reference_ray", "exact"])
+                + grid(coefficients=[128], light_rays=[1024], weights=["exact"]))
+    return ([{"spp": n} for n in ([1, 4] if budget == "quick" else [1, 4, 16])]
+            + grid(coefficients=[32, 128], weights=["exact"],
+                   spp=[1, 4] if budget == "quick" else [1, 4, 16]))
+
+
+def _minmax_grid(budget: str, convention: str) -> list[dict]:
+    """Yusov's three profiles (the talk's slices / samples / map sizes),
+    the defaults, and denser integration samples with each refinement
+    criterion; one sample per pixel centre in both conventions (the
+    method's own convention: it renders pixel centres only)."""
+    profiles = grid(profile=["high_quality", "balanced", "high_performance"])
+    if convention == "antialiased":
+        return [{}] + profiles
+    if budget == "quick":
+        return [{}] + profiles + grid(initial_step=[4], refinement=["depth", "visibility"])
+    return ([{}] + profiles
+            + grid(initial_step=[1, 4], refinement=["depth", "visibility"])
+            + grid(initial_step=[16], refinement=["visibility", "inscattering"]))
 
 
 def _volpath_grid(budget: str, convention: str) -> list[dict]:
@@ -123,13 +151,14 @@ def _volpath_grid(budget: str, convention: str) -> list[dict]:
 
 #: method name -> grid function (budget, convention) -> list of settings
 GRIDS = {"raymarch": _raymarch_grid, "epipolar_tree": _tree_grid,
-         "fourier_filter": _fourier_grid, "volpath": _volpath_grid}
+         "fourier_filter": _fourier_grid, "minmax_epipolar": _minmax_grid,
+         "volpath": _volpath_grid}
 
 
 def register_method(name: str, grid_fn) -> None:
     """Add (or replace) a method's settings grid: ``grid_fn(budget,
     convention)`` returns a list of integrator-property dicts (``spp`` is
-    passed to ``mi.render`` instead).  ``minmax_epipolar`` registers here."""
+    passed to ``mi.render`` instead)."""
     if not callable(grid_fn):
         raise ValueError(f"register_method({name!r}, ...): the grid must be a function "
                          "(budget, convention) -> list of settings dicts.")
@@ -346,12 +375,12 @@ def make_tasks(scenes, methods, budget: str, conventions, defines_of, references
             for method in methods:
                 settings = (list(grids[method]) if grids and method in grids
                             else settings_grid(method, budget, conv, pixels))
+                # a setting without ``spp`` renders one sample per pixel, said
+                # explicitly: left out, ``mi.render`` would use the scene's
+                # sampler count (the suite's scenes ask for 64)
+                settings = [{**s, "spp": int(s.get("spp", 1) or 1)} for s in settings]
                 if conv == "pixel_centre":
-                    # one sample per pixel, said explicitly: a setting without
-                    # ``spp`` would render at the scene's sampler count (the
-                    # suite's scenes ask for 64), 64× the pixel-centre work
-                    settings = [{**s, "spp": 1} for s in settings
-                                if int(s.get("spp", 1) or 1) == 1]
+                    settings = [s for s in settings if s["spp"] == 1]
                 if settings:
                     tasks.append({"scene": os.path.abspath(scene), "defines": defines,
                                   "convention": conv, "method": method, "settings": settings,

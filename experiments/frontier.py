@@ -30,6 +30,7 @@ TINY_GRIDS = {"raymarch": [{"steps": 32, "visibility": "exact"}, {"steps": 128, 
               "epipolar_tree": [{"slice_spacing": 2.0}, {"slice_spacing": 1.0},
                                 {"slice_spacing": 1.0, "spp": 4}],
               "fourier_filter": [{"coefficients": 16}, {"coefficients": 64}],
+              "minmax_epipolar": [{}, {"initial_step": 4}],
               "volpath": [{"spp": 16}, {"spp": 64}]}
 TINY_SIZES = {"pixel_centre": (32, 24), "antialiased": (32, 24)}
 

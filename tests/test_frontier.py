@@ -123,9 +123,16 @@ def test_settings_grids_cover_each_methods_knobs():
     assert {s["visibility"] for s in rm} == {"shadowmap", "exact"}
     assert len({s.get("shadowmap_resolution") for s in rm if s["visibility"] == "shadowmap"}) >= 2
     tree = fr.settings_grid("epipolar_tree", "full", "pixel_centre")
-    assert {"slice_spacing", "light_rays", "prefilter", "slice_interpolation"} <= set(tree[0])
+    assert {"slice_spacing", "light_rays", "prefilter", "slice_interpolation"} <= set(tree[1])
     ff = fr.settings_grid("fourier_filter", "full", "pixel_centre")
-    assert {"coefficients", "light_rays", "weights"} <= set(ff[0])
+    assert {"coefficients", "light_rays", "weights"} <= set(ff[1])
+    for method in ("epipolar_tree", "fourier_filter", "minmax_epipolar"):
+        for budget in fr.BUDGETS:      # each method's defaults are a frontier point
+            assert {} in fr.settings_grid(method, budget, "pixel_centre")
+    mm = fr.settings_grid("minmax_epipolar", "full", "pixel_centre")
+    assert {s.get("profile") for s in mm} >= {"high_quality", "balanced", "high_performance"}
+    assert {s.get("refinement") for s in mm} >= {"depth", "visibility", "inscattering"}
+    assert all("spp" not in s for s in fr.settings_grid("minmax_epipolar", "full", "antialiased"))
     for method in ("raymarch", "epipolar_tree", "fourier_filter"):
         assert len({s.get("spp") for s in fr.settings_grid(method, "quick", "antialiased")}) > 1
     assert fr.settings_grid("volpath", "quick", "pixel_centre") == []
@@ -135,7 +142,7 @@ def test_settings_grids_cover_each_methods_knobs():
 
 def test_settings_grid_errors_name_the_fix(monkeypatch):
     with pytest.raises(ValueError, match="register_method"):
-        fr.settings_grid("minmax_epipolar")
+        fr.settings_grid("no_such_method")
     with pytest.raises(ValueError, match="budget"):
         fr.settings_grid("raymarch", "huge")
     with pytest.raises(ValueError, match="convention"):
@@ -264,6 +271,26 @@ def test_cli_frontier_one_method_one_convention(tmp_path, cache, capsys):
     assert len(rows) == len(fr.settings_grid("fourier_filter", "quick", "pixel_centre"))
     assert {r["width"] for r in rows} == {"24"}
     assert "Captures" in capsys.readouterr().out
+
+
+def test_minmax_epipolar_is_swept_in_both_conventions(tmp_path, cache):
+    """minmax_epipolar sits on the frontiers like the other methods (it was
+    not registered: every sweep left it out); its antialiased points render
+    one sample per pixel centre, as the method requires."""
+    import scenes
+    from episcatter import cli
+
+    out = tmp_path / "mm"
+    status = cli.main(["frontier", scenes.path("spot_room"), "-i", "minmax_epipolar",
+                       "--size", "24x16", "--aa-size", "16x12", "--repeats", "1",
+                       "--no-progress", "-o", str(out)])
+    assert status == 0
+    rows = read_csv(out / "runs.csv")
+    assert not [r for r in rows if r.get("error_message")]
+    for conv in fr.CONVENTIONS:
+        got = [r for r in rows if r["convention"] == conv]
+        assert len(got) == len(fr.settings_grid("minmax_epipolar", "quick", conv))
+        assert all(float(r["relmse"]) >= 0 and float(r["time_s"]) > 0 for r in got)
 
 
 def test_cli_frontier_rejects_a_bad_size(capsys):
