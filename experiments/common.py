@@ -364,8 +364,27 @@ def base_parser(doc: str, default_scenes: list[str], quick_scenes: list[str]):
     p.add_argument("--resume", action="store_true",
                    help="reuse the per-scene checkpoints a previous run left in "
                         "<out>/checkpoints/ (same settings) instead of measuring again")
+    p.add_argument("--size", default=None, metavar="WxH",
+                   help="image size, instead of the experiment's own (e.g. 1280x960)")
     p.set_defaults(_scenes=(default_scenes, quick_scenes))
     return p
+
+
+def sized(settings: dict, size: str | None) -> dict:
+    """``settings`` with ``width``/``height`` taken from a ``--size`` WxH
+    (unchanged when ``size`` is None)."""
+    if size is None:
+        return settings
+    if "width" not in settings or "height" not in settings:
+        raise ValueError("--size: this experiment has no single image size to replace "
+                         "(its settings have no width/height); drop --size")
+    try:
+        w, h = (int(v) for v in str(size).lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size {size!r}: give WIDTHxHEIGHT, e.g. 1280x960") from None
+    if w < 1 or h < 1:
+        raise ValueError(f"--size {size!r}: width and height must be >= 1")
+    return {**settings, "width": w, "height": h}
 
 
 def scenes_of(args) -> list[str]:
@@ -420,7 +439,7 @@ def start_run(module, argv, default_scenes: list, quick_scenes: list,
     ``default_repeats``, 1 with ``--quick``), output folder, scenes."""
     args = base_parser(module.__doc__, default_scenes, quick_scenes).parse_args(argv)
     repeats = args.repeats or (1 if args.quick else default_repeats)
-    return Run(args, module.settings_for(args.quick), repeats,
+    return Run(args, sized(module.settings_for(args.quick), args.size), repeats,
                output_dir(module.NAME, args.out, args.quick), scenes_of(args))
 
 

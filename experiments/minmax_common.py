@@ -88,7 +88,7 @@ def scaled_run(doc: str, settings_for, name: str, argv, scenes: list, quick_scen
     if add_arguments is not None:
         add_arguments(p)
     args = p.parse_args(argv)
-    s = settings_for(args.quick)
+    s = c.sized(settings_for(args.quick), args.size)
     if args.scale:
         s["scale"] = args.scale
     return args, s, args.repeats or (1 if args.quick else 3), c.output_dir(name, args.out,

@@ -161,3 +161,21 @@ def test_stability_criteria_check_the_energy():
     assert stability.stats(ref * 1.001, ref)["bounded"]
     assert not stability.bounded(0, 0.0, 0.0, 1.0, mean_ratio=0.8)
     assert stability.bounded(0, 0.0, 0.0, 0.0, mean_ratio=float("nan"))
+
+
+def test_size_option_replaces_an_experiments_image_size(tmp_path):
+    """``--size WxH`` of every experiment (e.g. the minmax tables at
+    1280x960): width/height replaced, a bad size named, an experiment
+    without one image size refuses it."""
+    from experiments import common as c
+    from experiments import minmax_tree_gain as tg
+
+    assert c.sized({"width": 320, "height": 240, "x": 1}, "1280x960") == {
+        "width": 1280, "height": 960, "x": 1}
+    assert c.sized({"width": 320, "height": 240}, None) == {"width": 320, "height": 240}
+    with pytest.raises(ValueError, match="WIDTHxHEIGHT"):
+        c.sized({"width": 1, "height": 1}, "1280by960")
+    with pytest.raises(ValueError, match="no single image size"):
+        c.sized({"sizes": []}, "64x48")
+    run = c.start_run(tg, ["--size", "40x30", "--out", str(tmp_path)], tg.SCENES, tg.QUICK_SCENES)
+    assert (run.settings["width"], run.settings["height"]) == (40, 30)
