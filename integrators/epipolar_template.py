@@ -61,8 +61,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                                                 minimum=1, maximum=32768, integer=True)
         self.slice_interpolation = read_bool(props, "slice_interpolation",
                                              self.SLICE_INTERPOLATION)
-        self.slice_spacing = read_number(props, "slice_spacing", 1.0, minimum=0.05,
-                                         maximum=1e4)
+        #: None: automatic (:meth:`slice_spacing_for`)
+        self.slice_spacing = (read_number(props, "slice_spacing", 1.0, minimum=0.05,
+                                          maximum=1e4) if "slice_spacing" in props else None)
         self.remarch_disagreement = read_number(props, "remarch_disagreement",
                                                 self.REMARCH_DISAGREEMENT, minimum=0.0,
                                                 maximum=1.0)
@@ -82,11 +83,24 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         ``whole`` queries and recorded (``stats["frame_choices"]``)."""
         raise NotImplementedError
 
+    def slice_spacing_for(self, cap) -> float:
+        """Largest spacing [px] of the automatic slices for a capture:
+        ``slice_spacing`` when given, else 1 px at one sample per pixel and
+        1/√spp px with ``spp`` jittered samples per pixel.  Baran's bound
+        (§8: every pixel within half a pixel of a slice) is then kept for
+        the samples' own spacing, so that antialiased renders gain from
+        their samples instead of interpolating all of them from slices a
+        pixel apart."""
+        if self.slice_spacing is not None:
+            return self.slice_spacing
+        spp = int(cap.spp)
+        return 1.0 / spp ** 0.5 if spp > 1 and self.jitters(spp) else 1.0
+
     def choose_rows(self, params, cap):
         """(frame, slices, plan): the rows the camera samples are sorted into
         (hook): Baran's epipolar slices (§3, §8), no plan."""
         frame = epipolar_frame_of(params)
-        slices = choose_slices(frame, self.slices, self.slice_spacing)
+        slices = choose_slices(frame, self.slices, self.slice_spacing_for(cap))
         if not self.slices:
             slices = resolve_lit_cone(params, frame, slices)
         return frame, slices, None

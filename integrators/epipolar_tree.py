@@ -100,7 +100,10 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                apart (default 1: every pixel within half a
                                pixel of a slice)
     ``slice_spacing``          the automatic slices' largest spacing [px]
-                               (default 1; 2: about half the slices, as
+                               (default 1 at one sample per pixel, 1/√spp
+                               with spp jittered samples per pixel: the
+                               slices follow the samples; 2: about half
+                               the slices, as
                                fast as the nearest slice at 1 and still
                                more accurate with interpolation on the
                                nave, grove and terrain)

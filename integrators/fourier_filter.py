@@ -213,7 +213,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                projective: equal steps), every pixel
                                within half a pixel of a slice (row)
     ``slice_spacing``          automatic epipolar slices at most this many
-                               pixels apart (default 1)
+                               pixels apart (default: 1 at one sample per
+                               pixel, 1/√spp with spp jittered samples)
     ``slice_interpolation``    each camera sample a query of both
                                neighbouring slices, weighted by its
                                position between them (default true;
@@ -351,7 +352,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         if plan is None:     # Baran's slices, fine enough on small images (fourier_rows)
             frame = epipolar_frame_of(params)
             cam = params.camera
-            spacing = row_spacing(self.slice_spacing, cam.width, cam.height)
+            spacing = row_spacing(self.slice_spacing_for(cap), cam.width, cam.height)
             return frame, choose_slices(frame, self.slices, spacing), None
         return plan.frame, plan.rows.slices, plan
 
