@@ -93,6 +93,7 @@ import numpy as np
 from rectify.coords import direction_to_alpha_beta
 
 from .epipolar_setup import (EpipolarQueries, EqualLightRays, QueryTerms, gray, light_ray_channels,
+                             mode_visibility, factor_arrays,
                              light_ray_count, light_side_extinction, row_gamma_end, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_separation import SeparatedChannel
@@ -427,20 +428,40 @@ def radial_blocker_beta(params, frame, shadow_map, alpha, gamma, z_b) -> mi.Floa
 # The kernel K(γ, β) and its separation (§6, Eq. 4)
 # --------------------------------------------------------------------------
 
-def attenuation_exponent(x, x_max: float, k: float):
+def attenuation_exponent(x, x_max: float, k: float, x_band=None):
     """(E, ∂E/∂x) of E(x) = k x / (1 − x) (k = 2σt L: E = σt (t + r − L)),
-    continued linearly beyond ``x_max`` (module doc); Dr.Jit or NumPy."""
+    continued linearly beyond ``x_max`` (module doc); with ``x_band`` (per
+    lane, :func:`band_x`): held constant beyond ``min(x_band, x_max)``
+    instead (the banded kernel, module doc); Dr.Jit or NumPy."""
     xm = x_max
     e_max, slope_max = k * xm / (1.0 - xm), k / (1.0 - xm) ** 2
     if isinstance(x, np.ndarray) or np.isscalar(x):
+        if x_band is not None:
+            xc = np.minimum(x, np.minimum(x_band, xm))
+            return k * xc / (1.0 - xc), np.where(x <= xc, k / (1.0 - xc) ** 2, 0.0)
         xc = np.minimum(x, xm)
         inside = x <= xm
         return (np.where(inside, k * xc / (1.0 - xc), e_max + slope_max * (x - xm)),
                 np.where(inside, k / (1.0 - xc) ** 2, slope_max))
+    if x_band is not None:
+        xc = dr.minimum(x, dr.minimum(x_band, xm))
+        return k * xc / (1.0 - xc), dr.select(x <= xc, k / dr.square(1.0 - xc), 0.0)
     xc = dr.minimum(x, xm)
     inside = x <= xm
     return (dr.select(inside, k * xc / (1.0 - xc), e_max + slope_max * (x - xm)),
             dr.select(inside, k / dr.square(1.0 - xc), slope_max))
+
+
+def band_x(tan_half_beta, band_tan: float):
+    """x = tan(β/2) tan(γ_b/2) at γ_b = π − β − w, the start of view ray
+    β's asymptote band of width w (``band_tan`` = tan(w/2)): tan(γ_b/2) =
+    cot((β + w)/2), so x_b = t (1 − t·band_tan) / (t + band_tan), t =
+    tan(β/2); 0 where β + w ≥ π (the whole view ray is in the band);
+    Dr.Jit or NumPy."""
+    t = tan_half_beta
+    if isinstance(t, np.ndarray) or np.isscalar(t):
+        return np.maximum(t * (1.0 - t * band_tan) / np.maximum(t + band_tan, 1e-30), 0.0)
+    return dr.maximum(t * (1.0 - t * band_tan) / dr.maximum(t + band_tan, 1e-30), 0.0)
 
 
 def _phase(params, sin_b, cos_b, sin_g, cos_g) -> mi.Float:
@@ -499,16 +520,20 @@ def phase_table(params):
     return f_p
 
 
-def local_kernel_numpy(params, sigma_t: float, L: float, x_max: float, f_p=None):
+def local_kernel_numpy(params, sigma_t: float, L: float, x_max: float, f_p=None,
+                       band_tan: float = 0.0):
     """K(γ, β) = e^{-E(x)} f_p(β+γ) in float64 (the SVD's sample);
-    ``f_p``: a :func:`phase_table` (built here if None)."""
+    ``f_p``: a :func:`phase_table` (built here if None); ``band_tan`` > 0:
+    the banded kernel (:func:`attenuation_exponent`, :func:`band_x`)."""
     k = 2.0 * sigma_t * L
     f_p = f_p or phase_table(params)
 
     def K(gamma, beta):
         gamma, beta = np.broadcast_arrays(np.asarray(gamma, np.float64),
                                           np.asarray(beta, np.float64))
-        E, _ = attenuation_exponent(np.tan(0.5 * beta) * np.tan(0.5 * gamma), x_max, k)
+        tb = np.tan(0.5 * beta)
+        E, _ = attenuation_exponent(tb * np.tan(0.5 * gamma), x_max, k,
+                                    band_x(tb, band_tan) if band_tan > 0 else None)
         return np.exp(-E) * f_p(beta + gamma)
     return K
 
@@ -553,15 +578,21 @@ def _exponential_moments(u):
 @dataclass(eq=False)
 class LocalKernel:
     """K(γ, β) = e^{-E(x)} f_p(β+γ) of one colour channel, in Dr.Jit
-    (module doc); ``k = 2σt L``."""
+    (module doc); ``k = 2σt L``; ``band_tan`` > 0: the banded kernel,
+    E held constant in view ray β's asymptote band (:func:`band_x`)."""
     params: object
     k: float
     x_max: float
     isotropic: float | None
+    band_tan: float = 0.0
 
     @staticmethod
-    def of(params, sigma_t: float, L: float, x_max: float) -> "LocalKernel":
-        return LocalKernel(params, 2.0 * sigma_t * L, x_max, _isotropic_value(params))
+    def of(params, sigma_t: float, L: float, x_max: float,
+           band_tan: float = 0.0) -> "LocalKernel":
+        return LocalKernel(params, 2.0 * sigma_t * L, x_max, _isotropic_value(params), band_tan)
+
+    def _x_band(self, b: "Angles"):
+        return band_x(b.tan_half, self.band_tan) if self.band_tan > 0 else None
 
     def _phase(self, b: Angles, sin_g, cos_g):
         if self.isotropic is not None:
@@ -569,12 +600,13 @@ class LocalKernel:
         return _phase(self.params, b.sin, b.cos, sin_g, cos_g)
 
     def value(self, b: Angles, g: Angles) -> mi.Float:
-        E, _ = attenuation_exponent(b.tan_half * g.tan_half, self.x_max, self.k)
+        E, _ = attenuation_exponent(b.tan_half * g.tan_half, self.x_max, self.k,
+                                    self._x_band(b))
         return dr.exp(-E) * self._phase(b, g.sin, g.cos)
 
     def _exponent(self, b: Angles, tg):
         """(E, ∂E/∂γ) at tan(γ/2) = tg."""
-        E, dE = attenuation_exponent(b.tan_half * tg, self.x_max, self.k)
+        E, dE = attenuation_exponent(b.tan_half * tg, self.x_max, self.k, self._x_band(b))
         return E, dE * b.tan_half * (0.5 * (1.0 + tg * tg))
 
     def _sub_mean(self, b: Angles, g: Angles, g_end: Angles, h):
@@ -653,7 +685,7 @@ def local_ray_kernel(params, queries, rays: LocalLightRays, sigma_t: float):
 
 def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma_lo: float,
                            gamma_hi: float, beta_lo: float, beta_hi: float, rank: int,
-                           tol: float):
+                           tol: float, band_tan: float = 0.0):
     """Separate K(γ, β) ≈ Σ_i a_i(γ) b_i(β) over [γ_lo, γ_hi] × [β_lo, β_hi]
     with :func:`~integrators.integrand_svd.separate_sampled_kernel`, as
     :func:`integrators.kernel_separation.separate_channel` does for the
@@ -661,6 +693,7 @@ def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma
     in log(1 + c (γ − γ_lo)), c = σt L tan(β_hi/2) (K's steepest initial
     decay), and in log(1 + σt L Γ (tan(β/2) − tan(β_lo/2))) -- and in s_k,
     here the grid's quadrature of each view ray's ∫K dγ (no closed form).
+    ``band_tan`` > 0: the banded kernel (:class:`LocalSeparation`).
     Returns ``(γ grid, tan(β grid / 2), WA, WB)``."""
     G = max(gamma_hi - gamma_lo, 1e-30)
     beta_lo, beta_hi = widen_empty(beta_lo, beta_hi)
@@ -670,7 +703,7 @@ def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma
     w_gamma = weight(gamma_grid)
     cb = max(sigma_t * L * G, 1e-6)
     x_grid, _ = log1p_grid(cb, x_lo, x_hi)
-    K = local_kernel_numpy(params, sigma_t, L, x_max)
+    K = local_kernel_numpy(params, sigma_t, L, x_max, band_tan=band_tan)
 
     def scale(beta):
         b = np.asarray(beta, np.float64)
@@ -739,12 +772,31 @@ class LocalChannel(SeparatedChannel):
         return tabulated_terms(tan_half, self.x_lo, self.x_hi, self.c_b, b_sums, lanes)
 
 
+@dataclass(frozen=True)
 class LocalSeparation:
     """The point/spot light's stages of
     :func:`integrators.kernel_separation.separate_kernel`: A is the mean of
     a_i over every cell of the light rays' lattice (:class:`LocalLightRays`),
     evaluated once per cell and gathered into the rows (leaf g of row s =
-    cell m_s + g)."""
+    cell m_s + g).
+
+    ``band_cells`` > 0: the kernel separated is the *banded* one -- E held
+    constant in the last ``band_cells`` lattice cells before each view
+    ray's asymptote γ = π − β (:func:`band_x`) -- and the sweep's sum must
+    be corrected there by :func:`asymptote_band_correction`.  With the
+    light near the eye (L ≪ the view rays' lengths) every point farther
+    than ~L/Δγ from the eye lies in those cells, so the whole rise of E
+    (the camera-side transmittance) happens within ~1e-4 rad of the
+    asymptote: a step along the diagonal β + γ = π that no rank-24 kernel
+    resolves (issue 13, seeds 79, 233, 266: separation error 0.13 at rank
+    24, per-query sums off by up to 5 %)."""
+    band_cells: int = 0
+
+    def band_tan(self, rays: LocalLightRays) -> float:
+        """tan(w/2) of the band's width w = band_cells·Δγ (0: no band)."""
+        if not self.band_cells:
+            return 0.0
+        return math.tan(0.5 * min(self.band_cells * float(rays.delta_gamma[0]), 3.0))
 
     def light_side_path(self, queries, rays: LocalLightRays):
         """L − r_in: the light side of each light ray (:func:`light_side_extinction`)."""
@@ -754,11 +806,12 @@ class LocalSeparation:
                 tol: float) -> LocalChannel:
         L = float(queries.frame.light_distance)
         x_max = query_x_max(queries)
+        band = self.band_tan(rays)
         gamma_lo, gamma_hi, beta_lo, beta_hi = lit_domain(params, queries, rays)
         sep = separate_local_channel(params, sigma_t, L, x_max, gamma_lo, gamma_hi,
-                                     beta_lo, beta_hi, rank, tol)
+                                     beta_lo, beta_hi, rank, tol, band_tan=band)
         return LocalChannel(math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi), *sep,
-                            kernel=LocalKernel.of(params, sigma_t, L, x_max),
+                            kernel=LocalKernel.of(params, sigma_t, L, x_max, band),
                             c_b=sigma_t * L * (gamma_hi - gamma_lo))
 
     def kernel_points(self, queries, rays: LocalLightRays):
@@ -780,18 +833,125 @@ class LocalSeparation:
 # Per-query terms
 # --------------------------------------------------------------------------
 
+#: Gauss-Legendre nodes and weights on [0, 1] of :func:`near_segment`
+#: :func:`near_segment` takes its nodes where t_near exceeds this fraction of L
+NEAR_RATIO = 0.05
+NEAR_NODES = tuple((0.5 * (1.0 + x), 0.5 * w) for x, w in zip(*np.polynomial.legendre.leggauss(4)))
+
+
 def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
     """∫ over [0, t_near] (pinhole -> camera ray origin) of the unshadowed
-    integrand σs f_p I/r² e^{-σt τ} e^{-σt t} dt: one midpoint sample of the
-    light term times the exact camera-side integral (t_near ≪ L)."""
+    integrand σs f_p I/r² e^{-σt τ} e^{-σt t} dt, by Gauss-Legendre nodes
+    in the angle θ the segment subtends at the light (equiangular, Kulla &
+    Fajardo 2012: dt/r² = dθ/b, b the ray's distance from the light), so
+    that 1/r² is integrated exactly: with the light a few near-plane
+    distances from the eye, 1/r² changes by ~2× along the segment and one
+    midpoint sample missed ~2 % of it (issue 13, seed 79: +0.5 % on the
+    image).  Where t_near ≤ NEAR_RATIO·L (the suite), or the ray passes
+    through the light (b ≈ 0), one midpoint sample."""
     sigma_t = color(params.medium.sigma_t)
+    sigma_s = color(params.medium.sigma_s)
     omega = dr.gather(mi.Vector3f, cap.omega, queries.sample)
-    x = mi.Point3f(point(params.camera.origin)) + omega * (0.5 * queries.t_near)
-    wo, dist, E = sample_light(params, x)
-    tau, _, _ = segment_box(params, x, wo, dist)
-    f_p = phase_eval(params, omega, wo, x)
-    return (color(params.medium.sigma_s) * f_p * E * dr.exp(-sigma_t * tau)
-            * segment_weight(sigma_t, 0.0, queries.t_near))
+    o = mi.Point3f(point(params.camera.origin))
+    q = mi.Vector3f(point(params.light.position)) - mi.Vector3f(o) \
+        if params.light.position is not None else None
+    t_near = queries.t_near
+
+    def light_term(t):
+        x = o + omega * t
+        wo, dist, E = sample_light(params, x)
+        tau, _, _ = segment_box(params, x, wo, dist)
+        return sigma_s * phase_eval(params, omega, wo, x) * E * dr.exp(-sigma_t * tau), dist
+
+    mid, _ = light_term(0.5 * t_near)
+    value = mid * segment_weight(sigma_t, 0.0, t_near)
+    # the nodes only where the segment is not short against the light's
+    # distance (there the midpoint's error is below ~1e-4 of the segment)
+    t0 = dr.dot(q, omega)
+    b = dr.norm(q - omega * t0)
+    idx = dr.compress((t_near > NEAR_RATIO * dr.norm(q)) & (b > 1e-4 * dr.norm(q)))
+    if not dr.width(idx):
+        return value
+    omega = dr.gather(mi.Vector3f, omega, idx)
+    t0, b, tn = dr.gather(mi.Float, t0, idx), dr.gather(mi.Float, b, idx), dr.gather(mi.Float, t_near, idx)
+    th_a, th_b = dr.atan2(-t0, b), dr.atan2(tn - t0, b)
+    total = dr.zeros(mi.Color3f, dr.width(idx))
+    for u, w in NEAR_NODES:
+        t = t0 + b * dr.tan(th_a + (th_b - th_a) * u)
+        term, dist = light_term(t)
+        total += term * dr.square(dist) * dr.exp(-sigma_t * t) * w
+    dr.scatter(value, total * ((th_b - th_a) / b), idx)
+    return value
+
+
+def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLightRays, A, B, L,
+                               modes, last, band_cells: int) -> mi.Color3f:
+    """Per query, the change of the sweep's sum when its light-ray cells in
+    the asymptote band (:class:`LocalSeparation` with ``band_cells``: the
+    lattice cells from ⌊(π − β)/Δγ⌋ − band_cells on) take the exact mean
+    of K over their covered part instead of the banded kernel's Σ_i A_i B_i
+    (added to ``terms.last``, integral units: Σ_g L_g V_g (K̄_g − K̃_g) cover_g).
+
+    At most band_cells + 2 cells per query; only queries whose view ray
+    reaches the band (farther than ~L sin β/(band_cells·Δγ) from the eye).
+    Visibility: the cells' depth modes, the last cell's that of
+    :func:`~integrators.epipolar_setup.last_interval_visibility` (``last``;
+    :func:`~integrators.epipolar_setup.last_interval_correction` has already
+    turned the sweep's V_leaf into it); the exact mean is
+    :meth:`LocalKernel.cell_mean` over the covered part."""
+    out = dr.zeros(mi.Color3f, queries.count)
+    if not band_cells or not queries.count:
+        return out
+    delta = float(rays.delta_gamma[0])
+    m_s = mi.Float(dr.gather(mi.UInt32, rays.offset, queries.row))
+    k0 = mi.Float(last.k0)
+    j_a = dr.floor((math.pi - queries.beta) / delta - band_cells)
+    g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
+    idx = dr.compress((g_a <= k0) & (queries.beta < math.pi))
+    if not dr.width(idx):
+        return out
+    per = band_cells + 2
+    lane = dr.arange(mi.UInt32, dr.width(idx) * per)
+    owner, c = lane // per, lane % per
+    q = dr.gather(mi.UInt32, idx, owner)
+    g = dr.gather(mi.Float, g_a, q) + mi.Float(c)
+    keep = dr.compress(g <= dr.gather(mi.Float, k0, q))
+    q, g = dr.gather(mi.UInt32, q, keep), mi.UInt32(dr.gather(mi.Float, g, keep))
+    row = dr.gather(mi.UInt32, queries.row, q)
+    is_last = g == dr.gather(mi.UInt32, last.k0, q)
+    cover = dr.select(is_last, dr.gather(mi.Float, last.f, q), 1.0)
+    V = dr.select(is_last, dr.gather(mi.Float, last.V, q),
+                  mode_visibility(modes, row, dr.gather(mi.UInt32, queries.col, q), g))
+    beta = dr.gather(mi.Float, queries.beta, q)
+    b = Angles.of(beta)
+    gamma = rays.start(row) + mi.Float(g) * delta
+    width = cover * delta
+    bounds = interval_bounds(gamma, width)
+    a, nA, d, CA, N = factor_arrays(A, True)
+    bb, nB, _, CB, _ = factor_arrays(B, True)
+    leaf = row * d + g
+    slot = dr.gather(mi.UInt32, queries.slot, q)
+    if L is not None:
+        l, nL, _, CL, _ = factor_arrays(L, False)
+    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+    dist, x_max = float(queries.frame.light_distance), query_x_max(queries)
+    kernels = [LocalKernel.of(params, float(sigma_t[ch]), dist, x_max) for ch in range(CA)]
+    C = max(CA, CB, CL if L is not None else 1)
+    exact = [cover * kern.cell_mean(b, bounds, width) for kern in kernels]
+    per_channel = []
+    for ch in range(C):
+        sweep = mi.Float(0.0)
+        for i in range(N):
+            sweep += (dr.gather(mi.Float, a, (leaf * CA + ch % CA) * N + i)
+                      * dr.gather(mi.Float, bb, (slot * CB + ch % CB) * N + i))
+        v = V * (exact[ch % CA] - cover * sweep)
+        if L is not None:
+            v *= dr.gather(mi.Float, l, leaf * CL + ch % CL)
+        acc = dr.zeros(mi.Float, queries.count)
+        dr.scatter_reduce(dr.ReduceOp.Add, acc, v, q)
+        per_channel.append(acc)
+    return (mi.Color3f(per_channel[0], per_channel[0], per_channel[0]) if C == 1
+            else mi.Color3f(*per_channel))
 
 
 def local_query_terms(params, cap, queries: EpipolarQueries, rays: LocalLightRays, colour,

@@ -895,11 +895,17 @@ def leaf_visibility(queries: EpipolarQueries, modes: BlockerModes, leaf=0) -> mi
     semantics (:mod:`~integrators.partial_sum_tree`: a mode at index m
     removes its weight from the row's queries m, m+1, ...); ``leaf``: one
     light-ray index for all queries, or one per query."""
+    return mode_visibility(modes, queries.row, queries.col, leaf)
+
+
+def mode_visibility(modes: BlockerModes, row, col, leaf) -> mi.Float:
+    """:func:`leaf_visibility` of arbitrary (row, view-ray index ``col``,
+    leaf) lanes."""
     k = modes.beta.shape[2]
     d = modes.beta.shape[1]
     beta, weight = mi.Float(modes.beta.array), mi.Float(modes.weight.array)
-    base = (queries.row * d + mi.UInt32(leaf)) * k
-    col = mi.Float(queries.col)
+    base = (row * d + mi.UInt32(leaf)) * k
+    col = mi.Float(col)
     V = mi.Float(1.0)
     for m in range(k):
         acts = dr.gather(mi.Float, beta, base + m) <= col
@@ -1042,7 +1048,7 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
     return LastInterval(k0, f, V_leaf, V, idx)
 
 
-def _factor_layout(x, with_n: bool):
+def factor_arrays(x, with_n: bool):
     """(flat array, rows ∈ {1, n}, length, channels, N) of an A/B (``with_n``)
     or L tensor (:func:`~integrators.partial_sum_tree.factor_layout`)."""
     rows, length, C, _ = factor_layout(tuple(x.shape), 1 if with_n else 0)
@@ -1065,12 +1071,12 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
     row = dr.gather(mi.UInt32, queries.row, idx)
     slot = dr.gather(mi.UInt32, queries.slot, idx)
     k0 = dr.gather(mi.UInt32, last.k0, idx)
-    a, nA, d, CA, N = _factor_layout(A, True)
-    b, nB, _, CB, _ = _factor_layout(B, True)
+    a, nA, d, CA, N = factor_arrays(A, True)
+    b, nB, _, CB, _ = factor_arrays(B, True)
     leaf_a = row * d + k0 if nA > 1 else k0
     leaf_b = slot if nB > 1 else dr.gather(mi.UInt32, queries.col, idx)
     if L is not None:
-        l, nL, _, CL, _ = _factor_layout(L, False)
+        l, nL, _, CL, _ = factor_arrays(L, False)
         leaf_l = row * d + k0 if nL > 1 else k0
     weight = (dr.gather(mi.Float, last.f, idx)
               * (dr.gather(mi.Float, last.V, idx) - dr.gather(mi.Float, last.V_leaf, idx)))
@@ -1109,9 +1115,9 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L) -> mi.Color3f:
     last-interval corrections.  :func:`assemble_queries` returns 0 for a
     query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
     of its parts -- below their own rounding error."""
-    a, nA, d, CA, N = _factor_layout(A, True)
-    b, nB, _, CB, _ = _factor_layout(B, True)
-    C = max(CA, CB, 1 if L is None else _factor_layout(L, False)[3])
+    a, nA, d, CA, N = factor_arrays(A, True)
+    b, nB, _, CB, _ = factor_arrays(B, True)
+    C = max(CA, CB, 1 if L is None else factor_arrays(L, False)[3])
     n = queries.n
     # T[s, c, i] = Σ_g |A_i L|, lanes (s, c, i, g) with g innermost for block_sum
     j = dr.arange(mi.UInt32, n * C * N * d)
@@ -1119,7 +1125,7 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L) -> mi.Color3f:
     leaf = s * d + g if nA > 1 else g
     v = dr.abs(dr.gather(mi.Float, a, (leaf * CA + c % CA) * N + i))
     if L is not None:
-        l, nL, _, CL, _ = _factor_layout(L, False)
+        l, nL, _, CL, _ = factor_arrays(L, False)
         v *= dr.abs(dr.gather(mi.Float, l, (s * d + g if nL > 1 else g) * CL + c % CL))
     T = dr.block_sum(v, d)
     row = queries.slot if nB > 1 else queries.col

@@ -177,6 +177,10 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     SLICE_INTERPOLATION = True
     ROW_SUBSETS = True
+    #: point/spot lights: light-ray cells before each view ray's asymptote
+    #: in which the sweep's separated kernel is replaced by the exact cell
+    #: means per query (:class:`~integrators.epipolar_local_light.LocalSeparation`)
+    ASYMPTOTE_BAND = 2
 
     def read_method_properties(self, props):
         self.prefilter = read_number(props, "prefilter", 4, minimum=1, maximum=16, integer=True)
@@ -218,7 +222,8 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         with self.stage("svd") as keep:
             # separated on the whole frame, evaluated at these rows
             A, B = model.separated_kernel(params, queries, side.rays, self.svd_rank,
-                                          self.svd_tolerance, frame_rays=frame_side.rays)
+                                          self.svd_tolerance, frame_rays=frame_side.rays,
+                                          band_cells=self.ASYMPTOTE_BAND)
             keep.extend([A, B])
         modes = self.blocker_stage(params, cap, queries, side)
         rays, L, D = side.rays, side.L, side.D
@@ -235,7 +240,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                             self.prefilter)
             V0 = first_leaf_visibility(queries, modes, last)
             terms = model.query_terms(params, cap, queries, rays, side.colour, V0)
-            terms.last = last_interval_correction(queries, A, B, L, last)
+            terms.last = (last_interval_correction(queries, A, B, L, last)
+                          + model.band_correction(params, queries, rays, A, B, L, modes, last,
+                                                  self.ASYMPTOTE_BAND))
             terms.magnitude = sweep_magnitude(queries, A, B, L)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.append(value)

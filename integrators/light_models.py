@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import drjit as dr
 
-from .epipolar_local_light import (LocalSeparation, light_ray_factor, local_light_ray_grid,
+from .epipolar_local_light import (LocalSeparation, asymptote_band_correction, light_ray_factor, local_light_ray_grid,
                                    local_query_terms, local_ray_kernel, radial_blocker_beta,
                                    radial_map_point, trace_local_blocker_angles)
 from .epipolar_setup import (axial_blocker_beta, axial_map_point, directional_query_terms,
@@ -115,13 +115,25 @@ class LightModel:
     #: the light kind's stages of the kernel separation (:func:`separate_kernel`)
     separation = None
 
-    def separated_kernel(self, params, queries, rays, rank: int, tol: float, frame_rays=None):
+    def separated_kernel(self, params, queries, rays, rank: int, tol: float, frame_rays=None,
+                         band_cells: int = 0):
         """(A, B): the separated kernel at the light rays and the queries
         (one path for both kinds, :func:`~integrators.kernel_separation.separate_kernel`;
         ``frame_rays``: the whole frame's light rays when ``queries`` and
-        ``rays`` are some of its rows)."""
-        return separate_kernel(self.separation, params, queries, rays, rank, tol,
+        ``rays`` are some of its rows; ``band_cells``: the local light's
+        banded kernel, :meth:`band_correction`)."""
+        return separate_kernel(self.banded(band_cells), params, queries, rays, rank, tol,
                                frame_rays=frame_rays)
+
+    def banded(self, band_cells: int):
+        """The separation with an asymptote band of ``band_cells`` light-ray
+        cells (only the local light has one)."""
+        return self.separation
+
+    def band_correction(self, params, queries, rays, A, B, L, modes, last, band_cells: int):
+        """What the sweep's sum of each query misses in the asymptote band
+        of a banded kernel (0: no band)."""
+        return 0.0
 
     def query_terms(self, params, cap, queries, rays, colour, V_near):
         """Per-query factors of the integral."""
@@ -194,6 +206,12 @@ class Local(LightModel):
 
     def trace_blockers(self, params, queries, rays, k=1, lit=None):
         return trace_local_blocker_angles(params, queries, rays, k, lit=lit)
+
+    def banded(self, band_cells):
+        return LocalSeparation(band_cells) if band_cells else self.separation
+
+    def band_correction(self, params, queries, rays, A, B, L, modes, last, band_cells):
+        return asymptote_band_correction(params, queries, rays, A, B, L, modes, last, band_cells)
 
 
 MODELS = (Directional(), Local())
