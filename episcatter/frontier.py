@@ -513,100 +513,14 @@ def defines_for(budget: str, defines: dict | None = None, sizes: dict | None = N
 
 
 # --------------------------------------------------------------------------
-# Error budget (prototype of quality="auto"): one knob per method
+# Error budget: the integrators' quality="auto" (integrators.quality_auto)
 # --------------------------------------------------------------------------
 
-class BudgetRule:
-    """How a method meets a relMSE budget (pixel-centre convention) with one
-    quality knob, assuming error = C * knob**k near the frontier.
+def settings_for_budget(scene, method: str, budget: float) -> dict:
+    """Integrator properties of ``method`` that ``quality="auto"`` chooses
+    to render the loaded Mitsuba ``scene`` at relMSE <= ``budget``
+    (pixel-centre convention against ``raymarch visibility=exact``): the
+    probe and rule of :mod:`integrators.quality_auto`."""
+    from integrators.quality_auto import choose
 
-    A cheap probe renders the scene at ``coarse`` and ``fine`` (everything
-    else at ``base``); with amplitude ratio ``a = (coarse / fine)**(k / 2)``
-    between their error images, ``|I_coarse - I_fine|^2 = (a - 1)^2 |e_fine|^2``,
-    so relMSE(fine) ~ relMSE(I_coarse, I_fine) / (a - 1)^2 with no reference.
-    The knob is then set where C * knob**k = ``safety`` * budget, clamped to
-    ``limits``.  ``k`` comes from the frontier data (:func:`fit_exponent`)."""
-
-    def __init__(self, knob, coarse, fine, exponent, limits, base=None, integer=False,
-                 safety=0.5):
-        self.knob, self.coarse, self.fine, self.exponent = knob, coarse, fine, float(exponent)
-        self.limits, self.base, self.integer = limits, dict(base or {}), integer
-        self.safety = float(safety)
-
-    def settings(self, value) -> dict:
-        lo, hi = self.limits
-        value = min(max(value, lo), hi)
-        return {**self.base, self.knob: int(round(value)) if self.integer else float(value)}
-
-    def choose(self, probe_relmse: float, budget: float) -> dict:
-        """Settings for ``budget`` from the probe's relMSE(I_coarse, I_fine)."""
-        a = (self.coarse / self.fine) ** (self.exponent / 2.0)
-        err_fine = probe_relmse / (a - 1.0) ** 2
-        if not err_fine > 0:          # the probe saw no difference: the cheapest end
-            return self.settings(self.coarse if self.exponent > 0 else self.fine)
-        value = self.fine * (self.safety * budget / err_fine) ** (1.0 / self.exponent)
-        return self.settings(value)
-
-
-#: per method: slice spacing for the tree (relMSE grows with it), steps for
-#: the exact marcher, coefficients for the filter (errors fall with them);
-#: the exponents here are the textbook orders (midpoint steps: error ~ 1/n,
-#: relMSE ~ n^-2); ``experiments.error_budget`` refits them from frontier
-#: runs with :func:`fit_exponent`
-BUDGET_RULES = {
-    "epipolar_tree": BudgetRule("slice_spacing", 4.0, 2.0, 2.0, (0.25, 4.0)),
-    "raymarch": BudgetRule("steps", 32, 64, -2.0, (16, 8192), base={"visibility": "exact"},
-                           integer=True),
-    "fourier_filter": BudgetRule("coefficients", 8, 16, -2.0, (4, 256),
-                                 base={"weights": "exact"}, integer=True),
-}
-
-
-def fit_exponent(rows, method: str, knob: str, fixed: dict | None = None,
-                 convention: str = "pixel_centre") -> float:
-    """Median over scenes of the log-log slope of relMSE against ``knob``
-    (least squares over the runs of ``method`` whose other ``fixed``
-    properties match), from frontier run rows."""
-    slopes = []
-    for scene in sorted({r["scene"] for r in rows}):
-        pts = [(r["params"][knob], r["relmse"]) for r in rows
-               if r["scene"] == scene and r["method"] == method and r["convention"] == convention
-               and not r.get("error_message") and knob in (r.get("params") or {})
-               and all(r["params"].get(k, v) == v for k, v in (fixed or {}).items())
-               and usable(r["params"][knob], r["relmse"])]
-        if len({p[0] for p in pts}) >= 2:
-            x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
-            slopes.append(float(np.polyfit(x, y, 1)[0]))
-    if not slopes:
-        raise ValueError(f"no runs of {method} with two or more values of {knob!r} "
-                         "to fit an exponent from; run the frontier sweep first")
-    return float(np.median(slopes))
-
-
-def budget_probe(scene, method: str, rule: BudgetRule | None = None) -> dict:
-    """The probe of :class:`BudgetRule`: renders at the rule's coarse and fine
-    knob values (1 spp) and returns their relMSE and the probe's time."""
-    from .reference import render_rgb
-    from .scene_loading import make_integrator
-
-    rule = rule or BUDGET_RULES[method]
-    t0 = time.perf_counter()
-    coarse = render_rgb(scene, make_integrator(method, rule.settings(rule.coarse)), spp=1)
-    fine = render_rgb(scene, make_integrator(method, rule.settings(rule.fine)), spp=1)
-    return {"probe_relmse": metrics.scale_free_relmse(coarse, fine),
-            "probe_s": time.perf_counter() - t0}
-
-
-def settings_for_budget(scene, method: str, budget: float, rule: BudgetRule | None = None) -> dict:
-    """Integrator properties of ``method`` expected to render the loaded
-    Mitsuba ``scene`` at relMSE <= ``budget`` (pixel-centre convention
-    against ``raymarch visibility=exact``) at the least time: a cheap probe
-    (:func:`budget_probe`) measures how fast the scene's image changes with
-    the method's knob, and :data:`BUDGET_RULES` turns that into a setting."""
-    if method not in BUDGET_RULES and rule is None:
-        raise ValueError(f"no error-budget rule for {method!r}: choose from "
-                         f"{sorted(BUDGET_RULES)} or pass rule=BudgetRule(...)")
-    if not (isinstance(budget, (int, float)) and budget > 0):
-        raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4")
-    rule = rule or BUDGET_RULES[method]
-    return rule.choose(budget_probe(scene, method, rule)["probe_relmse"], budget)
+    return choose(scene, method, budget)[0]

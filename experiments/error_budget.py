@@ -1,16 +1,22 @@
-"""The error-budget prototype held out (issue 16):
-``python -m experiments.error_budget [--fit results/frontier/quick/runs.json]
-[--size WxH] [--scenes stem:name=value,...] [--quick]``.
+"""``quality="auto"`` fitted on the suite and held out on generated scenes
+(issue 16, item 4):
+``python -m experiments.error_budget [--fit RUNS.json ...] [--fit-only]
+[--seeds N] [--size WxH] [--methods ...] [--quick]``.
 
-1. Fits each :data:`episcatter.frontier.BUDGET_RULES` exponent on the
-   frontier runs of the suite (``--fit``; pixel-centre convention).
-2. On scenes the fit did not see (``--scenes``: suite files with other media
-   and surfaces through ``-D`` defines, or generated ones), for each method
-   and budget 1e-3 / 1e-4 / 1e-5: :func:`episcatter.frontier.settings_for_budget`
-   picks a setting, which is rendered (warm-up + median of ``repeats``) and
-   compared with the exact pixel-centre reference; a sweep of the same knob
-   on the same scene gives the frontier the choice is judged against
-   (time of the fastest frontier setting meeting the achieved error).
+1. Fit (:func:`fit_constants`): the exponents and time model of
+   :data:`integrators.quality_auto.FIT` from the suite's frontier runs
+   (pixel centres; ``--fit``, default quick640 and quick160).  ``--fit-only``
+   prints them (the committed constants are these, rounded).
+2. Hold out: generated scenes (:func:`experiments.random_scenes.random_scene`
+   at ``--size``; scenes whose exact reference is black or lit on fewer than
+   2 % of the pixels are skipped).  Per scene and method: a sweep of the
+   method's knobs (:data:`SWEEPS`) gives its frontier; per budget 1e-3 /
+   1e-4 / 1e-5 the ``quality="auto"`` integrator renders, its relMSE is
+   measured against the exact pixel-centre reference (``raymarch
+   visibility=exact``, 2048 steps) and its time (render alone: the chosen
+   settings timed as the sweep; with the probe: the warm auto render end
+   to end) is compared with the fastest frontier setting meeting the
+   achieved error.
 
 Writes ``results/error_budget/``: ``choices.csv``, ``sweep.csv``,
 ``budget.json`` and ``table.md``.
@@ -18,32 +24,121 @@ Writes ``results/error_budget/``: ``choices.csv``, ``sweep.csv``,
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import math
 import os
 import statistics
 import time
 
+import numpy as np
+
 NAME = "error_budget"
-#: held-out variants of the suite: other media (sigma_t, albedo) and lit surfaces
-HELD_OUT = ["nave_offscreen_lit:sigma_t=0.1", "point_fog:sigma_t=0.1",
-            "spot_room_lit:sigma_t=0.2", "beam_lit:sigma_t=0.03",
-            "nave_onscreen:sigma_t=0.02"]
-#: the knob values swept on each held-out scene (the frontier the choice is judged on)
-SWEEPS = {"epipolar_tree": [0.25, 0.5, 1.0, 2.0, 4.0],
-          "raymarch": [32, 64, 128, 256, 512, 1024],
-          "fourier_filter": [8, 16, 32, 64, 128, 256]}
-FITS = {"epipolar_tree": {"slice_interpolation": True, "light_rays": 0, "prefilter": 4},
-        "raymarch": {"visibility": "exact"}, "fourier_filter": {"weights": "exact"}}
+LEVELS = (1e-3, 1e-4, 1e-5)
+FIT_RUNS = ["results/frontier/quick640/runs.json", "results/frontier/quick160/runs.json"]
+METHODS = ("raymarch", "epipolar_tree", "fourier_filter")
+#: the settings swept on each held-out scene (the frontier a choice is judged on);
+#: the tree's light rays as densities (per diagonal pixel)
+SWEEPS = {"raymarch": [{"visibility": "exact", "steps": n}
+                       for n in (16, 32, 64, 128, 256, 512, 1024)],
+          "epipolar_tree": [{"slice_spacing": s, "density": r}
+                            for s, r in itertools.product((0.5, 1.0, 2.0, 4.0),
+                                                          (0.5, 1.0, 4.0))],
+          "fourier_filter": [{"coefficients": m} for m in (8, 16, 32, 64, 128, 256)]}
 
 
-def parse_scene(text: str):
-    """'stem:a=1,b=2' -> (stem, {'a': '1', 'b': '2'})."""
-    stem, _, rest = text.partition(":")
-    defines = dict(item.split("=", 1) for item in rest.split(",") if item)
-    return stem, defines
+# --------------------------------------------------------------------------
+# Fit
+# --------------------------------------------------------------------------
 
+def load_rows(paths) -> list[dict]:
+    rows = []
+    for path in paths:
+        with open(path) as f:
+            rows += [r for r in json.load(f)["rows"]
+                     if r.get("convention") == "pixel_centre" and not r.get("error_message")
+                     and r.get("relmse") and r["relmse"] > 0 and math.isfinite(r["relmse"])]
+    return rows
+
+
+def groups(rows, method, keep):
+    """Runs of ``method`` passing ``keep(params)``, per (scene, size)."""
+    out = {}
+    for r in rows:
+        if r["method"] == method and keep(r.get("params") or {}):
+            out.setdefault((r["scene"], r.get("width"), r.get("height")), []).append(r)
+    return out
+
+
+def median_slope(pairs_by_group) -> float:
+    slopes = []
+    for pts in pairs_by_group:
+        if len({x for x, _ in pts}) >= 2:
+            slopes.append(float(np.polyfit(np.log([x for x, _ in pts]),
+                                           np.log([y for _, y in pts]), 1)[0]))
+    if not slopes:
+        raise ValueError("no frontier runs with two or more knob values to fit from; "
+                         "run the frontier sweep first (python -m experiments.frontier)")
+    return float(np.median(slopes))
+
+
+def tree_density(r) -> float:
+    diag = math.hypot(r["width"], r["height"])
+    lr = r["params"].get("light_rays", 0) or max(32.0, diag)
+    return lr / diag
+
+
+def fit_tree(rows) -> dict:
+    """Exponents a, b of relMSE = A s^a + B rho^-b (A, B per scene, least
+    squares on relative residuals over a grid of a, b) and the time model
+    t = alpha + beta/s + gamma rho/s (per scene normalised by its mean)."""
+    g = groups(rows, "epipolar_tree",
+               lambda p: "slice_interpolation" not in p and "prefilter" not in p)
+    best = None
+    for a in np.arange(0.5, 3.01, 0.1):
+        for b in np.arange(0.3, 3.01, 0.1):
+            cost = 0.0
+            for runs in g.values():
+                s = np.array([r["params"]["slice_spacing"] for r in runs])
+                rho = np.array([tree_density(r) for r in runs])
+                e = np.array([r["relmse"] for r in runs])
+                X = np.stack([s ** a, rho ** -b], 1) / e[:, None]
+                coef = np.clip(np.linalg.lstsq(X, np.ones(len(e)), rcond=None)[0], 0, None)
+                cost += float(np.sum(np.log(np.maximum(X @ coef, 1e-12)) ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, float(a), float(b))
+    X, y = [], []
+    for runs in g.values():
+        t = np.array([r["time_s"] for r in runs])
+        for r, tt in zip(runs, t / t.mean()):
+            s, rho = r["params"]["slice_spacing"], tree_density(r)
+            X.append([1.0, 1.0 / s, rho / s])
+            y.append(tt)
+    coef = np.clip(np.linalg.lstsq(np.array(X), np.array(y), rcond=None)[0], 0, None)
+    return {"a": round(best[1], 2), "b": round(best[2], 2),
+            "time": tuple(round(float(c / coef.sum()), 3) for c in coef)}
+
+
+def fit_constants(rows) -> dict:
+    """:data:`integrators.quality_auto.FIT` from frontier run rows."""
+    march = groups(rows, "raymarch", lambda p: p.get("visibility") == "exact")
+    filt = groups(rows, "fourier_filter",
+                  lambda p: "light_rays" not in p and p.get("weights") == "reference_ray")
+    return {"raymarch": {"k": round(median_slope(
+                [[(r["params"]["steps"], r["relmse"]) for r in v] for v in march.values()]), 2),
+                "k_range": (-4.0, -1.0)},
+            "epipolar_tree": fit_tree(rows),
+            "fourier_filter": {"k": round(median_slope(
+                [[(r["params"]["coefficients"], r["relmse"]) for r in v]
+                 for v in filt.values()]), 2)}}
+
+
+# --------------------------------------------------------------------------
+# Held out
+# --------------------------------------------------------------------------
 
 def timed(scene, integrator, repeats):
+    """(image, median time) of ``repeats`` renders after a warm-up (DESIGN §5)."""
     from episcatter.reference import render_rgb
 
     render_rgb(scene, integrator, spp=1)
@@ -55,139 +150,216 @@ def timed(scene, integrator, repeats):
     return img, statistics.median(times)
 
 
-def fitted_rules(fit_path):
-    """BUDGET_RULES with exponents fitted on the rows of a frontier runs.json
-    (the default exponents where the file has too few runs)."""
+def explicit(method, setting, diagonal) -> dict:
+    """Integrator properties of a sweep setting (the tree's density -> light rays)."""
+    from integrators.quality_auto import light_rays_of
+
+    s = dict(setting)
+    if "density" in s:
+        s["light_rays"] = light_rays_of(s.pop("density"), diagonal)
+    return {"type": method, **s}
+
+
+def usable_reference(ref) -> str | None:
+    """Why a reference cannot judge a method (black, non-finite, hardly lit), or None."""
+    if not np.all(np.isfinite(ref)):
+        return "non-finite reference"
+    peak = float(ref.max())
+    if peak <= 0:
+        return "black reference"
+    lit = float(np.mean(ref.max(axis=-1) > 1e-2 * peak))
+    return None if lit >= 0.02 else f"lit on {lit:.1%} of the pixels"
+
+
+def held_out_scenes(n, first_seed, size):
+    """(name, loaded scene, reference) of the first ``n`` usable seeds."""
+    import mitsuba as mi
+
+    from episcatter.reference import render_rgb
+    from experiments.random_scenes import random_scene
+
+    out, seed, skipped = [], first_seed, []
+    while len(out) < n and seed < first_seed + 20 * n:
+        spec = random_scene(seed).at_resolution(*size)
+        seed += 1
+        scene = spec.load()
+        ref = render_rgb(scene, mi.load_dict({"type": "raymarch", "visibility": "exact",
+                                              "steps": 2048}), spp=1)
+        why = usable_reference(ref)
+        if why:
+            skipped.append((spec.name, why))
+            continue
+        out.append((spec.name, scene, ref))
+    return out, skipped
+
+
+def run_scene(name, scene, ref, methods, repeats, log):
+    import mitsuba as mi
+
     from episcatter import frontier as fr
 
-    rules, fits = dict(fr.BUDGET_RULES), {}
-    if fit_path and os.path.isfile(fit_path):
-        with open(fit_path) as f:
-            rows = json.load(f)["rows"]
-        for method, rule in rules.items():
-            try:
-                k = fr.fit_exponent(rows, method, rule.knob, FITS.get(method))
-            except ValueError:
-                continue
-            fits[method] = k
-            rules[method] = fr.BudgetRule(rule.knob, rule.coarse, rule.fine, k, rule.limits,
-                                          rule.base, rule.integer, rule.safety)
-    return rules, fits
+    h, w = ref.shape[:2]
+    diag = math.hypot(w, h)
+    choices, sweep = [], []
+    for method in methods:
+        pts = []
+        try:
+            for setting in SWEEPS[method]:
+                props = explicit(method, setting, diag)
+                img, t = timed(scene, mi.load_dict(props), repeats)
+                e = fr.image_errors(img, ref)["relmse"]
+                pts.append((t, e))
+                sweep.append({"scene": name, "method": method,
+                              "settings": {k: v for k, v in props.items() if k != "type"},
+                              "time_s": t, "relmse": e})
+        except ValueError as exc:
+            log(f"{name} {method}: {exc}")
+            continue
+        front = fr.pareto_front(pts)
+        for budget in LEVELS:
+            auto = mi.load_dict({"type": method, "quality": "auto", "error_budget": budget})
+            res = auto.render_layers(scene, spp=1)                  # warm-up
+            t0 = time.perf_counter()
+            res = auto.render_layers(scene, spp=1)
+            import drjit as dr
+            dr.eval(res["full"])
+            dr.sync_thread()
+            t_auto = time.perf_counter() - t0
+            settings = res.stats["auto_settings"]
+            img_e, t = timed(scene, mi.load_dict({"type": method, **settings}), repeats)
+            img = np.asarray(res["full"])
+            err = fr.image_errors(img, ref)
+            bit_same = bool(np.array_equal(img, img_e))
+            best_t, bound = (fr.time_at_error(front, err["relmse"]) if err["relmse"] > 0
+                             else (float("nan"), "?"))
+            row = {"scene": name, "method": method, "budget": budget, "settings": settings,
+                   "probe": res.stats["auto_probe"], "probe_s": res.stats["auto_probe_s"],
+                   "time_s": t, "time_with_probe_s": t_auto, "relmse": err["relmse"],
+                   "error_over_budget": err["relmse"] / budget,
+                   "same_as_explicit": bit_same,
+                   "cheapest_sweep_relmse": min(pts)[1],
+                   "frontier_time_at_error_s": best_t, "frontier_bound": bound,
+                   "time_over_frontier": t / best_t if best_t else float("nan"),
+                   "time_with_probe_over_frontier": t_auto / best_t if best_t else float("nan")}
+            choices.append(row)
+            log(f"{name} {method} {budget:g}: {settings} relMSE {err['relmse']:.3g} "
+                f"({row['error_over_budget']:.2f}x) t {t:.3g} s (+probe {t_auto:.3g} s) "
+                f"frontier {bound} {best_t:.3g} s")
+    return choices, sweep
+
+
+def summarize(choices) -> dict:
+    """Per method: share of cases with relMSE <= 2x budget, in [budget/2, 2
+    budget], time (without / with the probe) <= 2x the frontier's at the
+    achieved error (a ">=" bound -- the sweep never got that accurate --
+    makes the ratio an upper bound); the same on the cases where the
+    budget matters (the sweep's cheapest setting misses it)."""
+    out = {}
+    for method in sorted({c["method"] for c in choices}):
+        sel = [c for c in choices if c["method"] == method]
+        n = len(sel)
+        ok = lambda key: sum(c[key] <= 2 for c in sel) / n
+        hard = [c for c in sel if c["cheapest_sweep_relmse"] > c["budget"]]
+        out[method] = {"cases": n, "scenes": len({c["scene"] for c in sel}),
+                       "hard_cases": len(hard),
+                       "hard_error_le_2x_budget": (sum(c["error_over_budget"] <= 2 for c in hard)
+                                                   / len(hard) if hard else float("nan")),
+                       "hard_time_le_2x_frontier": (sum(c["time_over_frontier"] <= 2
+                                                        for c in hard) / len(hard)
+                                                    if hard else float("nan")),
+                       "error_le_2x_budget": sum(c["error_over_budget"] <= 2 for c in sel) / n,
+                       "error_within_2x_either_way":
+                           sum(0.5 <= c["error_over_budget"] <= 2 for c in sel) / n,
+                       "time_le_2x_frontier": ok("time_over_frontier"),
+                       "time_with_probe_le_2x_frontier": ok("time_with_probe_over_frontier"),
+                       "median_time_over_frontier":
+                           statistics.median(c["time_over_frontier"] for c in sel),
+                       "median_time_with_probe_over_frontier":
+                           statistics.median(c["time_with_probe_over_frontier"] for c in sel),
+                       "same_as_explicit": sum(c["same_as_explicit"] for c in sel) / n}
+        for b in LEVELS:
+            sb = [c for c in sel if c["budget"] == b]
+            out[method][f"error_le_2x_budget_{b:g}"] = (sum(c["error_over_budget"] <= 2
+                                                            for c in sb) / len(sb))
+    return out
+
+
+def report(summary, fit, command, skipped) -> str:
+    lines = [f"Command: `{command}`", "",
+             "| method | scenes | cases | relMSE <= 2x budget (1e-3 / 1e-4 / 1e-5) | "
+             "in [budget/2, 2 budget] | time <= 2x frontier | with probe | "
+             "median time / frontier (with probe) | budget matters: cases, "
+             "relMSE <= 2x budget, time <= 2x frontier |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for m, s in summary.items():
+        per = " / ".join(f"{s[f'error_le_2x_budget_{b:g}']:.0%}" for b in LEVELS)
+        lines.append(f"| {m} | {s['scenes']} | {s['cases']} | {s['error_le_2x_budget']:.0%} "
+                     f"({per}) | {s['error_within_2x_either_way']:.0%} | "
+                     f"{s['time_le_2x_frontier']:.0%} | {s['time_with_probe_le_2x_frontier']:.0%}"
+                     f" | {s['median_time_over_frontier']:.2f} "
+                     f"({s['median_time_with_probe_over_frontier']:.2f}) | {s['hard_cases']}, "
+                     f"{s['hard_error_le_2x_budget']:.0%}, {s['hard_time_le_2x_frontier']:.0%} |")
+    lines += ["", f"fitted constants: {fit}", "",
+              f"skipped scenes: {len(skipped)} ({'; '.join(f'{n}: {w}' for n, w in skipped)})",
+              "", "Per case: choices.csv; sweeps: sweep.csv."]
+    return "\n".join(lines) + "\n"
+
+
+def write_results(out, choices, sweep, fit, command, skipped, settings) -> str:
+    """choices.csv, sweep.csv, budget.json and table.md; the table's text."""
+    from episcatter.frontier_report import environment, write_rows_csv
+
+    write_rows_csv(os.path.join(out, "choices.csv"), choices)
+    write_rows_csv(os.path.join(out, "sweep.csv"), sweep)
+    summary = summarize(choices)
+    with open(os.path.join(out, "budget.json"), "w") as f:
+        json.dump({"settings": settings, "environment": environment(), "summary": summary},
+                  f, indent=1, default=str)
+    text = report(summary, fit, command, skipped)
+    with open(os.path.join(out, "table.md"), "w") as f:
+        f.write(text)
+    return text
 
 
 def main(argv=None) -> int:
-    import scenes as suite
-
-    from episcatter import frontier as fr
     from episcatter.cmd_frontier import parse_size
-    from episcatter.frontier_report import environment, write_rows_csv
-    from episcatter.reference import load_reference
-    from episcatter.scene_loading import load_scene, make_integrator
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--fit", default="results/frontier/quick/runs.json")
-    p.add_argument("--scenes", nargs="+", default=HELD_OUT)
-    p.add_argument("--methods", nargs="+", default=["epipolar_tree", "raymarch"])
+    p.add_argument("--fit", nargs="+", default=FIT_RUNS)
+    p.add_argument("--fit-only", action="store_true")
+    p.add_argument("--seeds", type=int, default=24, help="held-out scenes (usable ones)")
+    p.add_argument("--first-seed", type=int, default=1000)
+    p.add_argument("--methods", nargs="+", default=list(METHODS))
     p.add_argument("--size", default="160x120")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--quick", action="store_true", help="tiny smoke run")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    w, h = parse_size("32x24" if args.quick else args.size)
-    scenes_ = args.scenes[:1] if args.quick else args.scenes
+    fit = fit_constants(load_rows([f for f in args.fit if os.path.isfile(f)])) \
+        if any(os.path.isfile(f) for f in args.fit) else None
+    if args.fit_only:
+        print(json.dumps(fit, indent=1))
+        return 0
+    size = parse_size("24x18" if args.quick else args.size)
+    n = 1 if args.quick else args.seeds
     repeats = 1 if args.quick else args.repeats
-    out = args.out or os.path.join("results", NAME, "quick" if args.quick else "")
+    out = args.out or os.path.join("results", NAME)
     os.makedirs(out, exist_ok=True)
-    rules, fits = fitted_rules(args.fit)
+    scenes, skipped = held_out_scenes(n, args.first_seed, size)
     choices, sweep = [], []
-    for text in scenes_:
-        stem, extra = parse_scene(text)
-        path = suite.path(stem)
-        defines = {**extra, "res_x": str(w), "res_y": str(h)}
-        ref, _ = load_reference(fr.make_reference(path, defines, "pixel_centre",
-                                                  progress=not args.quick))
-        scene = load_scene(path, defines)
-        for method in args.methods:
-            rule = rules[method]
-            pts = []
-            for v in SWEEPS[method]:
-                img, t = timed(scene, make_integrator(method, rule.settings(v)), repeats)
-                e = fr.image_errors(img, ref)["relmse"]
-                pts.append((t, e))
-                sweep.append({"scene": text, "method": method, rule.knob: v, "time_s": t,
-                              "relmse": e})
-            front = fr.pareto_front(pts)
-            for budget in fr.LEVELS:
-                t0 = time.perf_counter()
-                probe = fr.budget_probe(scene, method, rule)
-                settings = rule.choose(probe["probe_relmse"], budget)
-                choose_s = time.perf_counter() - t0
-                img, t = timed(scene, make_integrator(method, settings), repeats)
-                err = fr.image_errors(img, ref)
-                best_t, best_bound = fr.time_at_error(front, err["relmse"]) if err["relmse"] > 0 \
-                    else (float("nan"), "?")
-                choices.append({"scene": text, "method": method, "budget": budget,
-                                "settings": settings, "probe_relmse": probe["probe_relmse"],
-                                "probe_s": choose_s, "time_s": t, **err,
-                                "error_over_budget": err["relmse"] / budget,
-                                "frontier_time_at_error_s": best_t,
-                                "frontier_bound": best_bound,
-                                "time_over_frontier": t / best_t if best_t else float("nan"),
-                                "time_with_probe_over_frontier":
-                                    (t + choose_s) / best_t if best_t else float("nan")})
-                print(f"{text} {method} budget {budget:g}: {settings} relMSE "
-                      f"{err['relmse']:.3g} ({err['relmse'] / budget:.2f}x) time {t:.3g} s "
-                      f"(frontier {best_bound} {best_t:.3g} s)", flush=True)
-    write_rows_csv(os.path.join(out, "choices.csv"), choices)
-    write_rows_csv(os.path.join(out, "sweep.csv"), sweep)
-    summary = summarize(choices)
-    with open(os.path.join(out, "budget.json"), "w") as f:
-        json.dump({"settings": {"scenes": scenes_, "methods": args.methods, "size": [w, h],
-                                "repeats": repeats, "fit": args.fit, "fitted_exponents": fits,
-                                "reference": "raymarch visibility=exact steps=2048, pixel centres"},
-                   "environment": environment(), "summary": summary}, f, indent=1, default=str)
-    with open(os.path.join(out, "table.md"), "w") as f:
-        f.write(report(choices, summary, fits))
-    print(report(choices, summary, fits))
+    command = "python -m experiments.error_budget " + " ".join(argv if argv is not None
+                                                               else os.sys.argv[1:])
+    for name, scene, ref in scenes:        # the files are rewritten after every scene
+        c, s = run_scene(name, scene, ref, args.methods, repeats, lambda m: print(m, flush=True))
+        choices += c
+        sweep += s
+        text = write_results(out, choices, sweep, fit, command.strip(), skipped,
+                             {"seeds": [n for n, _, _ in scenes], "skipped": skipped,
+                              "methods": args.methods, "size": list(size), "repeats": repeats,
+                              "fit": args.fit, "fitted": fit,
+                              "reference": "raymarch visibility=exact steps=2048, pixel centres"})
+    print(text)
     return 0
-
-
-def summarize(choices) -> dict:
-    """Share of cases within 2x of the budget (<= 2x, and in [0.5, 2]) and
-    within 2x of the frontier's time at the achieved error, per method."""
-    out = {}
-    for method in sorted({c["method"] for c in choices}):
-        sel = [c for c in choices if c["method"] == method]
-        n = len(sel)
-        out[method] = {
-            "cases": n,
-            "error_le_2x_budget": sum(c["error_over_budget"] <= 2 for c in sel) / n,
-            "error_within_2x_either_way": sum(0.5 <= c["error_over_budget"] <= 2 for c in sel) / n,
-            "time_le_2x_frontier": sum(c["time_over_frontier"] <= 2 for c in sel) / n,
-            "time_with_probe_le_2x_frontier":
-                sum(c["time_with_probe_over_frontier"] <= 2 for c in sel) / n}
-    return out
-
-
-def report(choices, summary, fits) -> str:
-    lines = ["| scene | method | budget | setting | relMSE | / budget | time [s] | "
-             "frontier time at that error [s] | time / frontier (with probe) |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for c in choices:
-        knob = {k: v for k, v in c["settings"].items() if k != "visibility" and k != "weights"}
-        lines.append(f"| {c['scene']} | {c['method']} | {c['budget']:g} | {knob} | "
-                     f"{c['relmse']:.3g} | {c['error_over_budget']:.2f} | {c['time_s']:.3g} | "
-                     f"{'' if c['frontier_bound'] == '=' else c['frontier_bound'] + ' '}"
-                     f"{c['frontier_time_at_error_s']:.3g} | {c['time_over_frontier']:.2f} "
-                     f"({c['time_with_probe_over_frontier']:.2f}) |")
-    lines += ["", f"fitted exponents: {fits}", "", "| method | cases | relMSE <= 2x budget | "
-              "in [budget/2, 2 budget] | time <= 2x frontier | same with probe |",
-              "|---|---|---|---|---|---|"]
-    for m, s in summary.items():
-        lines.append(f"| {m} | {s['cases']} | {s['error_le_2x_budget']:.0%} | "
-                     f"{s['error_within_2x_either_way']:.0%} | {s['time_le_2x_frontier']:.0%} | "
-                     f"{s['time_with_probe_le_2x_frontier']:.0%} |")
-    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -95,6 +95,11 @@ class SceneSpec:
     @property
     def name(self) -> str:
         return f"seed {self.seed} ({self.kind}, {self.light['type']}, {self.res[0]}x{self.res[1]})"
+
+    def at_resolution(self, width: int, height: int) -> "SceneSpec":
+        """The same scene rendered at ``width`` x ``height`` (the camera,
+        lights and media unchanged; the seed's own ``res`` is untouched)."""
+        return replace(self, res=(int(width), int(height)))
 
     def as_json(self) -> dict:
         return json.loads(json.dumps(asdict(self)))

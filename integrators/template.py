@@ -39,6 +39,10 @@ Common properties (every method):
                        overrides both.
 ``jitter_pixels``      jitter camera samples inside the pixel (default: true
                        when more than one sample per pixel).
+``quality``            ``explicit`` (default) or ``auto``: choose the
+                       method's settings for ``error_budget`` (relMSE,
+                       pixel centres) with a probe of the scene
+                       (:mod:`integrators.quality_auto`).
 =====================  ======================================================
 
 ``render_layers()`` returns a :class:`RenderResult`, a mapping of every layer
@@ -68,6 +72,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import mitsuba as mi
 
+from . import quality_auto
 from .capture import CameraCapture, capture_camera
 from .scene_params import SceneParams
 
@@ -338,6 +343,12 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                                   if "samples_per_pixel" in props else None)
         self.jitter_pixels = (read_bool(props, "jitter_pixels", False)
                               if "jitter_pixels" in props else None)
+        self.quality, self.error_budget = quality_auto.read_quality(props)
+        self.method_name = props.plugin_name()
+        #: the properties as given, but the quality mode (quality="auto"
+        #: renders with these plus the settings it chooses)
+        self._explicit = {k: props[k] for k in props.keys()
+                          if k not in ("quality", "error_budget")}
         self.read_properties(props)
         #: what mi.traverse lists: the properties as read (plain values)
         self.property_names = tuple(k for k, v in vars(self).items()
@@ -441,6 +452,11 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         return [f"{layer}.{c}" for layer in LAYERS if layer != self.output
                 for c in layer_channels(layer)]
 
+    @property
+    def explicit_properties(self) -> dict:
+        """The properties as given, without ``quality``/``error_budget``."""
+        return dict(self._explicit)
+
     def traverse(self, callback):
         """The properties, read-only (``mi.traverse``)."""
         for name in self.property_names:
@@ -471,6 +487,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         ``RenderResult.frame_state`` of the render ``known`` continues (the
         method checks it still fits before it uses it)."""
         variant = check_variant()
+        if self.quality == "auto":
+            return quality_auto.render_auto(self, scene, sensor, seed, spp, samples=samples,
+                                            moved=moved, known=known, frame_state=frame_state)
         if known is not None and samples is None:
             raise ValueError("known: a capture to complete needs the samples= mask of the "
                              "samples to capture anew.")

@@ -1,0 +1,315 @@
+"""``quality="auto"``: an integrator chooses its own settings for a relMSE
+budget (issue 16, item 4).
+
+Common properties (every method, read by the template):
+
+==================  ========================================================
+``quality``         ``explicit`` (default): the settings as given;
+                    ``auto``: the method picks its quality knobs for
+                    ``error_budget`` from the scene before it renders.
+``error_budget``    the relMSE to meet (pixel-centre convention of
+                    DESIGN §2: scale-free relMSE against ``raymarch
+                    visibility=exact``); needs ``quality="auto"``.
+==================  ========================================================
+
+How a method chooses (:data:`RULES`): a *probe* renders the scene at one
+or two cheap settings of the method and measures their relMSE directly
+on a strided subset of about :data:`PROBE_PIXELS` pixel centres, against
+an exact marcher (``raymarch visibility=exact``, :data:`REFERENCE_STEPS`
+steps) run on that subset alone (a partial render, which marches only
+the masked samples).  An error model per method, with exponents fitted on
+the suite's frontier runs (``python -m experiments.error_budget --fit``,
+constants in :data:`FIT`), turns the probe's errors into a prediction for
+every candidate setting; the rule takes the cheapest candidate predicted
+to meet ``SAFETY * error_budget`` (the most accurate one when none is).
+
+* ``raymarch`` (exact visibility, Baran 2010 §2's reference marcher):
+  relMSE = C·n^k in the steps n; the probe marches the subset at
+  :data:`MARCH_PROBE` steps, which gives the scene's own C and k (k
+  clamped to ``FIT["raymarch"]["k_range"]``).
+* ``epipolar_tree`` (Baran 2010 §8 slices, §7 light rays): relMSE =
+  A·(s/s₀)^a + B·(ρ/ρ₀)^-b in the slice spacing s [px] and the light-ray
+  density ρ (light rays per slice over the image diagonal in pixels; the
+  light-ray term is the tree's error floor at fixed light rays); the probe
+  renders (s₀, ρ₀) and (s₀, 4ρ₀), which separates A and B; time ~
+  α + β/s + γ·ρ/s (fitted).
+* ``fourier_filter`` (Klehm 2014 §3 truncated Fourier series): relMSE =
+  F + C·M^k in the coefficients M (F: what the series cannot fix, e.g. the
+  rectified map's texels); the probe renders M = 16 and 32.
+
+The chosen settings, the probe's errors and its time go into the render's
+``RenderResult.stats`` (``auto_settings``, ``auto_probe``,
+``auto_probe_s``) and ``timings["probe"]``; the render itself is that of
+an integrator built with the chosen settings, so it equals an explicit
+render with them.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+QUALITIES = ("explicit", "auto")
+#: pixel centres the probe measures its errors on (a strided subset)
+PROBE_PIXELS = 1200
+#: steps of the exact marcher the probe's errors are measured against
+REFERENCE_STEPS = 1024
+#: the budget's share the rule aims at (the probe's estimate is noisy)
+SAFETY = 0.5
+#: steps of the marcher's probe
+MARCH_PROBE = (64, 128)
+#: candidate slice spacings [px] and light-ray densities of the tree
+TREE_SPACINGS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
+TREE_DENSITIES = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0)
+#: the tree's probe: slice spacing s0 and densities rho0, 4 rho0
+TREE_PROBE = (2.0, 0.5, 2.0)
+#: candidate coefficients of the filter, and its probe
+FILTER_COEFFICIENTS = (8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
+FILTER_PROBE = (16, 32)
+
+#: constants fitted on results/frontier/quick640 and quick160 (pixel
+#: centres) by ``python -m experiments.error_budget --fit-only``
+FIT = {
+    "raymarch": {"k": -1.99, "k_range": (-4.0, -1.0)},
+    "epipolar_tree": {"a": 1.9, "b": 1.1, "time": (0.543, 0.354, 0.102)},
+    "fourier_filter": {"k": -1.62},
+}
+
+
+def read_quality(props) -> tuple[str, float | None]:
+    """``quality`` and ``error_budget`` of ``props`` (module doc), with
+    ValueErrors naming the fix (the knobs an auto rule chooses may not be
+    given with it)."""
+    quality = props.get("quality", "explicit")
+    if quality not in QUALITIES:
+        raise ValueError(f"Property 'quality' = {quality!r} is not one of {list(QUALITIES)}.")
+    has_budget = "error_budget" in props
+    if quality == "explicit":
+        if has_budget:
+            raise ValueError("Property 'error_budget' needs quality='auto' (the integrator then "
+                             "chooses its settings to meet it); add quality='auto' or drop "
+                             "error_budget.")
+        return quality, None
+    method = props.plugin_name()
+    if method not in RULES:
+        raise ValueError(f"quality='auto' has no rule for '{method}' yet: use one of "
+                         f"{sorted(RULES)} or give the settings explicitly.")
+    if not has_budget:
+        raise ValueError("quality='auto' needs an error_budget (relMSE, pixel-centre "
+                         "convention), e.g. error_budget=1e-4.")
+    budget = props["error_budget"]
+    if isinstance(budget, bool) or not isinstance(budget, (int, float)) or \
+            not math.isfinite(budget) or budget <= 0:
+        raise ValueError(f"Property 'error_budget' = {budget!r} must be a positive relMSE, "
+                         "e.g. 1e-4.")
+    given = sorted(k for k in RULES[method]["knobs"] if k in props)
+    if given:
+        raise ValueError(f"quality='auto' chooses {given} itself: drop them, or drop "
+                         "quality='auto' to set them explicitly.")
+    return quality, float(budget)
+
+
+# --------------------------------------------------------------------------
+# The probe: errors on a pixel subset against an exact marcher
+# --------------------------------------------------------------------------
+
+def probe_pixels(width: int, height: int, target: int = PROBE_PIXELS) -> np.ndarray:
+    """Indices (row-major) of a strided subset of about ``target`` pixels,
+    every pixel when the image has fewer."""
+    stride = max(1, int(round(math.sqrt(width * height / target))))
+    ys, xs = np.meshgrid(np.arange(stride // 2, height, stride),
+                         np.arange(stride // 2, width, stride), indexing="ij")
+    return (ys * width + xs).ravel()
+
+
+def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
+    """DESIGN §2's scale-free relMSE of two (pixels, 3) arrays."""
+    floor = eps * float(np.mean(ref)) ** 2
+    d2 = (np.asarray(test, np.float64) - ref) ** 2
+    if floor <= 0:
+        return 0.0 if not d2.any() else math.inf
+    return float(np.mean(d2 / (ref.astype(np.float64) ** 2 + floor)))
+
+
+class Probe:
+    """The probe of one scene (module doc): renders settings of a method at
+    one sample per pixel centre and measures them on :func:`probe_pixels`
+    against the exact marcher on those pixels."""
+
+    def __init__(self, scene, sensor, method: str, base: dict):
+        import mitsuba as mi
+
+        self.scene, self.sensor, self.method = scene, sensor, method
+        #: one sample per pixel centre, the full image, whatever the render asks
+        self.base = {k: v for k, v in base.items()
+                     if k not in ("samples_per_pixel", "jitter_pixels", "output")}
+        s = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+        self.width, self.height = (int(v) for v in s.film().crop_size())
+        self.pixels = probe_pixels(self.width, self.height)
+        self.mask = np.zeros(self.width * self.height, bool)
+        self.mask[self.pixels] = True
+        ref = mi.load_dict({"type": "raymarch", "visibility": "exact",
+                            "steps": REFERENCE_STEPS})
+        self.reference = self.values(ref, partial=True)
+        self.errors = []
+
+    def values(self, integrator, partial=False) -> np.ndarray:
+        """The output layer of ``integrator`` on the probe pixels (a partial
+        render of them where the method marches samples alone)."""
+        kw = {"samples": self.mask} if partial else {}
+        res = integrator.render_layers(self.scene, self.sensor, spp=1, **kw)
+        img = np.asarray(res[integrator.output], np.float64)
+        return img.reshape(-1, img.shape[-1])[self.pixels]
+
+    def error(self, settings: dict, partial=False) -> float:
+        """relMSE of the method at ``settings`` on the probe pixels."""
+        import mitsuba as mi
+
+        integ = mi.load_dict({"type": self.method, **self.base, **settings})
+        e = subset_relmse(self.values(integ, partial), self.reference)
+        self.errors.append({**settings, "relmse": e})
+        return e
+
+    @property
+    def diagonal(self) -> float:
+        return math.hypot(self.width, self.height)
+
+
+# --------------------------------------------------------------------------
+# Rules: probe -> settings
+# --------------------------------------------------------------------------
+
+def target_of(budget: float) -> float:
+    return SAFETY * budget
+
+
+def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
+    """Steps of the exact marcher: relMSE = C n^k through the probe's two
+    step counts (k clamped; the fitted k where the probe sees no error)."""
+    fit = fit or FIT["raymarch"]
+    n1, n2 = MARCH_PROBE
+    e1 = probe.error({"visibility": "exact", "steps": n1}, partial=True)
+    e2 = probe.error({"visibility": "exact", "steps": n2}, partial=True)
+    return {"visibility": "exact", "steps": march_steps(e1, e2, budget, fit)}
+
+
+def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:
+    """Steps n with C n^k = SAFETY·budget, C and k from the errors ``e1``,
+    ``e2`` at :data:`MARCH_PROBE` (module doc)."""
+    fit = fit or FIT["raymarch"]
+    n1, n2 = MARCH_PROBE
+    if not (e2 > 0 and math.isfinite(e2)):
+        return 16
+    k = fit["k"]
+    if e1 > 0 and math.isfinite(e1):
+        k = min(max(math.log(e2 / e1) / math.log(n2 / n1), fit["k_range"][0]), fit["k_range"][1])
+    n = n2 * (target_of(budget) / e2) ** (1.0 / k)
+    return int(min(max(math.ceil(n), 16), 16384))
+
+
+def tree_model(e1: float, e2: float, fit=None):
+    """(A, B) of relMSE = A (s/s0)^a + B (rho/rho0)^-b from the probe's
+    errors at (s0, rho0) and (s0, 4 rho0)."""
+    fit = fit or FIT["epipolar_tree"]
+    _, r0, r1 = TREE_PROBE
+    q = (r1 / r0) ** -fit["b"]
+    B = max((e1 - e2) / (1.0 - q), 0.0)
+    A = max(e1 - B, 0.0)
+    return A, B
+
+
+def tree_choice(e1: float, e2: float, budget: float, fit=None):
+    """(slice_spacing, density) of least modelled time meeting the target
+    (the most accurate candidate if none does)."""
+    fit = fit or FIT["epipolar_tree"]
+    s0, r0, _ = TREE_PROBE
+    A, B = tree_model(e1, e2, fit)
+    al, be, ga = fit["time"]
+    best, most = None, None
+    for s in TREE_SPACINGS:
+        for r in TREE_DENSITIES:
+            err = A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
+            t = al + be / s + ga * r / s
+            if err <= target_of(budget) and (best is None or t < best[0]):
+                best = (t, s, r)
+            if most is None or (err, t) < most[0]:
+                most = ((err, t), s, r)
+    return (best[1], best[2]) if best else (most[1], most[2])
+
+
+def light_rays_of(density: float, diagonal: float) -> int:
+    return int(min(max(round(density * diagonal), 32), 32767))
+
+
+def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
+    """Slice spacing and light rays of the tree (module doc)."""
+    s0, r0, r1 = TREE_PROBE
+    e1 = probe.error({"slice_spacing": s0, "light_rays": light_rays_of(r0, probe.diagonal)})
+    e2 = probe.error({"slice_spacing": s0, "light_rays": light_rays_of(r1, probe.diagonal)})
+    s, r = tree_choice(e1, e2, budget, fit)
+    return {"slice_spacing": s, "light_rays": light_rays_of(r, probe.diagonal)}
+
+
+def filter_coefficients(e1: float, e2: float, budget: float, fit=None) -> int:
+    """Coefficients M: relMSE = F + C M^k through the probe's errors at
+    :data:`FILTER_PROBE`; the smallest candidate meeting the target, else
+    the smallest from the probe's first up whose series error is below a
+    quarter of F (the floor: more coefficients do not help)."""
+    fit = fit or FIT["fourier_filter"]
+    m1, m2 = FILTER_PROBE
+    k = fit["k"]
+    C = max((e1 - e2) / (m1 ** k - m2 ** k), 0.0)
+    F = max(e2 - C * m2 ** k, 0.0)
+    for M in FILTER_COEFFICIENTS:
+        if F + C * M ** k <= target_of(budget):
+            return M
+    for M in FILTER_COEFFICIENTS:
+        if M >= m1 and C * M ** k <= 0.25 * F:
+            return M
+    return FILTER_COEFFICIENTS[-1]
+
+
+def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
+    """Coefficients of the filter (module doc)."""
+    e1, e2 = (probe.error({"coefficients": m}) for m in FILTER_PROBE)
+    return {"coefficients": filter_coefficients(e1, e2, budget, fit)}
+
+
+#: method -> the knobs its rule chooses and the rule (probe, budget) -> settings
+RULES = {
+    "raymarch": {"knobs": ("steps", "visibility"), "choose": choose_raymarch},
+    "epipolar_tree": {"knobs": ("slice_spacing", "light_rays", "slices"),
+                      "choose": choose_tree},
+    "fourier_filter": {"knobs": ("coefficients",), "choose": choose_filter},
+}
+
+
+def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0):
+    """(settings, stats) of ``method`` for ``budget`` on ``scene``: the
+    rule's choice and what the probe measured (its errors, its time)."""
+    if method not in RULES:
+        raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
+    if not (isinstance(budget, (int, float)) and budget > 0):
+        raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
+    t0 = time.perf_counter()
+    probe = Probe(scene, sensor, method, base or {})
+    settings = RULES[method]["choose"](probe, float(budget))
+    return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
+                      "auto_probe_pixels": int(len(probe.pixels))}
+
+
+def render_auto(integrator, scene, sensor=0, seed=0, spp=0, **kw):
+    """``render_layers`` of an auto integrator: choose (:func:`choose`),
+    then render with an integrator built with the chosen settings; its
+    result with the choice in ``stats`` and the probe in ``timings``."""
+    import mitsuba as mi
+
+    base = dict(integrator.explicit_properties)
+    settings, stats = choose(scene, integrator.method_name, integrator.error_budget, base, sensor)
+    inner = mi.load_dict({"type": integrator.method_name, **base, **settings})
+    result = inner.render_layers(scene, sensor, seed, spp, **kw)
+    return replace(result, timings={**result.timings, "probe": stats["auto_probe_s"]},
+                   stats={**result.stats, **stats, "auto_settings": settings,
+                          "error_budget": integrator.error_budget})

@@ -1,0 +1,147 @@
+"""quality="auto" with an error_budget (issue 16, item 4): property
+validation, the rules' monotonicity in the budget, an auto render equal to
+the explicit render of its choice, and the fit of the committed constants."""
+from __future__ import annotations
+
+import math
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from integrators import quality_auto as qa
+
+METHODS = ("raymarch", "epipolar_tree", "fourier_filter")
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("props, match", [
+    ({"quality": "auto", "error_budget": 0.0}, "positive relMSE"),
+    ({"quality": "auto", "error_budget": -1e-4}, "positive relMSE"),
+    ({"error_budget": 1e-4}, "add quality='auto'"),
+    ({"quality": "explicit", "error_budget": 1e-4}, "add quality='auto'"),
+    ({"quality": "auto"}, "needs an error_budget"),
+    ({"quality": "best", "error_budget": 1e-4}, "is not one of"),
+])
+def test_quality_properties_are_validated(method, props, match):
+    with pytest.raises(Exception, match=match):
+        mi.load_dict({"type": method, **props})
+
+
+@pytest.mark.parametrize("method, knob", [("raymarch", {"steps": 64}),
+                                          ("epipolar_tree", {"slice_spacing": 2.0}),
+                                          ("fourier_filter", {"coefficients": 16})])
+def test_auto_refuses_the_knobs_it_chooses(method, knob):
+    with pytest.raises(Exception, match="chooses"):
+        mi.load_dict({"type": method, "quality": "auto", "error_budget": 1e-4, **knob})
+
+
+def test_auto_needs_a_rule():
+    with pytest.raises(Exception, match="no rule for 'minmax_epipolar'"):
+        mi.load_dict({"type": "minmax_epipolar", "quality": "auto", "error_budget": 1e-4})
+
+
+BUDGETS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 1e-6)
+
+
+@pytest.mark.parametrize("e1, e2", [(1e-3, 2.5e-4), (1e-4, 9e-5), (1e-2, 1e-4), (0.0, 0.0)])
+def test_march_steps_grow_as_the_budget_shrinks(e1, e2):
+    steps = [qa.march_steps(e1, e2, b) for b in BUDGETS]
+    assert steps == sorted(steps)
+
+
+def test_march_steps_meet_a_power_law():
+    """Errors C n^-2 at the probe's steps: the chosen n has C n^-2 = SAFETY * budget."""
+    C = 3.0
+    n1, n2 = qa.MARCH_PROBE
+    n = qa.march_steps(C * n1 ** -2.0, C * n2 ** -2.0, 1e-5)
+    assert C * n ** -2.0 == pytest.approx(qa.SAFETY * 1e-5, rel=0.02)
+
+
+@pytest.mark.parametrize("e1, e2", [(1e-3, 9e-4), (1e-4, 2e-5), (3e-5, 3e-5), (1e-6, 1e-7)])
+def test_tree_choice_is_monotone_in_the_budget(e1, e2):
+    fit = qa.FIT["epipolar_tree"]
+    A, B = qa.tree_model(e1, e2)
+    s0, r0, _ = qa.TREE_PROBE
+    pred = [A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
+            for s, r in (qa.tree_choice(e1, e2, b) for b in BUDGETS)]
+    assert all(p2 <= p1 * (1 + 1e-12) for p1, p2 in zip(pred, pred[1:]))
+
+
+@pytest.mark.parametrize("e1, e2", [(1e-3, 3e-4), (1e-4, 1e-4), (2e-3, 1e-5)])
+def test_filter_coefficients_grow_as_the_budget_shrinks(e1, e2):
+    Ms = [qa.filter_coefficients(e1, e2, b) for b in BUDGETS]
+    assert Ms == sorted(Ms)
+
+
+def test_probe_pixels_stride_the_image():
+    idx = qa.probe_pixels(160, 120, 1200)
+    assert len(idx) == 1200 and len(set(idx.tolist())) == 1200
+    assert len(qa.probe_pixels(3, 2, 1200)) == 6
+
+
+@pytest.mark.parametrize("method", ["raymarch", "epipolar_tree", "fourier_filter"])
+def test_auto_render_equals_the_explicit_render_of_its_choice(make_scene, method):
+    scene = make_scene()
+    auto = mi.load_dict({"type": method, "quality": "auto", "error_budget": 1e-4})
+    res = auto.render_layers(scene, spp=1)
+    settings = res.stats["auto_settings"]
+    assert set(settings) <= set(qa.RULES[method]["knobs"])
+    assert res.stats["auto_probe_s"] > 0 and res.timings["probe"] > 0
+    assert len(res.stats["auto_probe"]) >= 2
+    same = mi.load_dict({"type": method, **settings}).render_layers(scene, spp=1)
+    assert np.array_equal(np.asarray(res["full"]), np.asarray(same["full"]))
+
+
+def test_auto_via_mi_render(make_scene):
+    scene = make_scene()
+    img = mi.render(scene, integrator=mi.load_dict({"type": "raymarch", "quality": "auto",
+                                                    "error_budget": 1e-3}), spp=1)
+    assert np.all(np.isfinite(np.asarray(img)))
+
+
+def fixture_rows():
+    """Frontier-like rows whose errors and times follow the committed model
+    exactly (two scenes per method, 640x480)."""
+    fit = qa.FIT
+    rows = []
+    base = {"convention": "pixel_centre", "width": 640, "height": 480}
+    diag = math.hypot(640, 480)
+    for scene, C in (("a.xml", 1e-2), ("b.xml", 3.0)):
+        for n in (64, 256, 1024):
+            rows.append({**base, "scene": scene, "method": "raymarch", "time_s": 1.0,
+                         "params": {"visibility": "exact", "steps": n},
+                         "relmse": C * n ** fit["raymarch"]["k"]})
+        for M in (16, 32, 64, 128):
+            rows.append({**base, "scene": scene, "method": "fourier_filter", "time_s": 1.0,
+                         "params": {"coefficients": M, "weights": "reference_ray"},
+                         "relmse": C * M ** fit["fourier_filter"]["k"]})
+        tree = fit["epipolar_tree"]
+        al, be, ga = tree["time"]
+        for s in (0.5, 1.0, 2.0, 4.0):
+            for L in (0, 512, 1024):
+                rho = (L or diag) / diag
+                rows.append({**base, "scene": scene, "method": "epipolar_tree",
+                             "params": {"slice_spacing": s, "light_rays": L},
+                             "relmse": C * 1e-3 * (s ** tree["a"] + 0.5 * rho ** -tree["b"]),
+                             "time_s": C * (al + be / s + ga * rho / s)})
+    return rows
+
+
+def test_fit_reproduces_the_committed_constants():
+    from experiments.error_budget import fit_constants
+
+    got = fit_constants(fixture_rows())
+    fit = qa.FIT
+    assert got["raymarch"]["k"] == pytest.approx(fit["raymarch"]["k"], abs=0.01)
+    assert got["fourier_filter"]["k"] == pytest.approx(fit["fourier_filter"]["k"], abs=0.01)
+    assert got["epipolar_tree"]["a"] == pytest.approx(fit["epipolar_tree"]["a"], abs=0.01)
+    assert got["epipolar_tree"]["b"] == pytest.approx(fit["epipolar_tree"]["b"], abs=0.01)
+    assert got["epipolar_tree"]["time"] == pytest.approx(fit["epipolar_tree"]["time"], abs=2e-3)
+
+
+def test_fit_refuses_rows_without_sweeps():
+    from experiments.error_budget import fit_constants
+
+    with pytest.raises(ValueError, match="frontier sweep"):
+        fit_constants([])
