@@ -108,9 +108,11 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
                        slice_interpolation=[False])
                 + grid(slice_spacing=[2.0], light_rays=[0], prefilter=[1],
                        slice_interpolation=[True]))
+    # antialiased: the defaults (slices 1/sqrt(spp) px apart, following the
+    # samples) and fixed spacings at each sample count
     if budget == "quick":
-        return grid(slice_spacing=[1.0, 2.0], spp=[1, 4, 16])
-    return grid(slice_spacing=[1.0, 2.0, 4.0], spp=[1, 4, 16, 64])
+        return grid(spp=[1, 4, 16, 64]) + grid(slice_spacing=[1.0, 2.0], spp=[1, 4, 16])
+    return grid(spp=[1, 4, 16, 64]) + grid(slice_spacing=[1.0, 2.0, 4.0], spp=[1, 4, 16, 64])
 
 
 def _fourier_grid(budget: str, convention: str) -> list[dict]:
