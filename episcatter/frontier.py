@@ -107,6 +107,11 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
                 + grid(slice_spacing=[2.0, 4.0], light_rays=[0], prefilter=[4],
                        slice_interpolation=[False])
                 + grid(slice_spacing=[2.0], light_rays=[0], prefilter=[1],
+                       slice_interpolation=[True])
+                # cheap end: where the tree's frontier crosses 1e-3 / 1e-4
+                + grid(slice_spacing=[4.0, 8.0], light_rays=[256], prefilter=[4],
+                       slice_interpolation=[True])
+                + grid(slice_spacing=[8.0], light_rays=[0], prefilter=[4],
                        slice_interpolation=[True]))
     # antialiased: the defaults (slices 1/sqrt(spp) px apart, following the
     # samples) and fixed spacings at each sample count
@@ -148,7 +153,8 @@ def _minmax_grid(budget: str, convention: str) -> list[dict]:
 def _volpath_grid(budget: str, convention: str) -> list[dict]:
     if convention == "pixel_centre":
         return []   # a Monte Carlo estimator has no pixel-centre image
-    return grid(spp=[16, 64, 256] if budget == "quick" else [16, 64, 256, 1024, 4096])
+    return grid(spp=[16, 64, 256, 1024] if budget == "quick"
+                else [16, 64, 256, 1024, 4096, 16384])
 
 
 #: method name -> grid function (budget, convention) -> list of settings
