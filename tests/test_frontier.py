@@ -257,17 +257,22 @@ def test_experiment_tiny_run_writes_frontiers_speedups_floor_and_plots(tmp_path,
     assert (merged / "aa_check.csv").is_file()
 
 
-@pytest.mark.slow
-def test_cli_frontier_one_method_one_convention(tmp_path, cache, capsys):
+def cli_sweep(out, scene: str, method: str, *options) -> list[dict]:
+    """``episcatter frontier`` of one suite scene and method at tiny sizes,
+    one timed repeat; the run rows (the command must succeed)."""
     import scenes
     from episcatter import cli
 
-    out = tmp_path / "cli"
-    status = cli.main(["frontier", scenes.path("nave_offscreen"), "-i", "fourier_filter",
-                       "--convention", "pixel_centre", "--size", "24x16", "--repeats", "1",
-                       "--no-progress", "-o", str(out)])
+    status = cli.main(["frontier", scenes.path(scene), "-i", method, *options,
+                       "--repeats", "1", "--no-progress", "-o", str(out)])
     assert status == 0
-    rows = read_csv(out / "runs.csv")
+    return read_csv(out / "runs.csv")
+
+
+@pytest.mark.slow
+def test_cli_frontier_one_method_one_convention(tmp_path, cache, capsys):
+    rows = cli_sweep(tmp_path / "cli", "nave_offscreen", "fourier_filter",
+                     "--convention", "pixel_centre", "--size", "24x16")
     assert len(rows) == len(fr.settings_grid("fourier_filter", "quick", "pixel_centre"))
     assert {r["width"] for r in rows} == {"24"}
     assert "Captures" in capsys.readouterr().out
@@ -277,15 +282,8 @@ def test_minmax_epipolar_is_swept_in_both_conventions(tmp_path, cache):
     """minmax_epipolar sits on the frontiers like the other methods (it was
     not registered: every sweep left it out); its antialiased points render
     one sample per pixel centre, as the method requires."""
-    import scenes
-    from episcatter import cli
-
-    out = tmp_path / "mm"
-    status = cli.main(["frontier", scenes.path("spot_room"), "-i", "minmax_epipolar",
-                       "--size", "24x16", "--aa-size", "16x12", "--repeats", "1",
-                       "--no-progress", "-o", str(out)])
-    assert status == 0
-    rows = read_csv(out / "runs.csv")
+    rows = cli_sweep(tmp_path / "mm", "spot_room", "minmax_epipolar",
+                     "--size", "24x16", "--aa-size", "16x12")
     assert not [r for r in rows if r.get("error_message")]
     for conv in fr.CONVENTIONS:
         got = [r for r in rows if r["convention"] == conv]
