@@ -57,8 +57,9 @@ from __future__ import annotations
 import drjit as dr
 
 from .epipolar_local_light import (LocalSeparation, asymptote_band_correction, light_ray_factor,
-                                   local_light_ray_grid, local_query_terms, local_ray_kernel, radial_blocker_beta,
-                                   radial_map_point, trace_local_blocker_angles)
+                                   local_light_ray_grid, local_query_terms, local_ray_kernel,
+                                   radial_blocker_beta, radial_map_point,
+                                   trace_local_blocker_angles)
 from .epipolar_setup import (axial_blocker_beta, axial_map_point, directional_query_terms,
                              light_ray_grid, light_side_factor, shadow_map_blocker_angles,
                              trace_blocker_angles, trace_sub_ray_blockers)
