@@ -168,6 +168,24 @@ def reconstruction_weights(z_r, M: int = DEFAULT_M) -> list:
     return a
 
 
+def band_drop_weights(z_r, band, M: int = DEFAULT_M) -> list:
+    """Ray coefficients ``[d_1(z_r), .., d_M(z_r)]`` of the drop of the
+    truncated series across ``[z_r − band, z_r + band]`` (Dr.Jit):
+    ``0.5 + a(z_r − band)·B − 0.5 − a(z_r + band)·B = d(z_r)·B`` with
+    ``d_{2k−1} = (4/c_k) sin(c_k band) sin(c_k z_r)``,
+    ``d_{2k} = (4/c_k) sin(c_k band) cos(c_k z_r)`` (angle addition), so that
+    one more dot product with the same basis gives it.  ``band``: a float
+    or one per lane."""
+    K = check_M(M) // 2
+    sines, cosines = odd_harmonics(z_r, K)
+    band_sines, _ = odd_harmonics(band if isinstance(band, mi.Float) else mi.Float(band), K)
+    d = []
+    for c_k, s, c, sb in zip(harmonic_frequencies(M), sines, cosines, band_sines):
+        g = sb * float(4.0 / c_k)
+        d += [g * s, g * c]
+    return d
+
+
 def basis_coefficients_reference(z, M: int = DEFAULT_M) -> np.ndarray:
     """NumPy oracle of :func:`basis_coefficients`: shape ``z.shape + (M,)``."""
     cz = np.asarray(z, np.float64)[..., None] * harmonic_frequencies(M)
@@ -442,7 +460,7 @@ def _depth_map_reference(z, lo, hi, fit_depth):
 # ---------------------------------------------------------------------------
 
 def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
-                        exact_bounds: bool = True, active=True) -> mi.Float:
+                        exact_bounds: bool = True, active=True, band: float = 0.0):
     """Filtered (weighted average) visibility ``V̄`` of view rays (Listing 4, Eq. 7).
 
     ``row`` (mi.UInt32): epipolar slice; ``j`` (mi.Float): continuous texel
@@ -455,6 +473,13 @@ def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
     depth range (module doc; ``False`` = the series as published).  Lanes
     with ``active`` false or a zero weight sum return 1.  Cost: ``2·M`` gathers
     (``(R + 1)·M`` with ``R`` regions) and one coefficient set per pixel.
+
+    ``band`` > 0: ``(V̄, drop)``, also the drop of the (unclamped) series
+    average from ``z_r − band`` to ``z_r + band`` (:func:`band_drop_weights`:
+    the same gathers, one more dot product; 0 in a region whose depth
+    range ``exact_bounds`` decides exactly): about the weighted share of the
+    texels whose depth lies within ``band`` of the ray's, where the series
+    blurs the step.
     """
     n, R = fb.n, fb.regions
     row = mi.UInt32(row)
@@ -468,50 +493,65 @@ def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
         rho0 = rho1 = mi.UInt32(0)
     else:
         rho0, rho1 = j0 // L_o, j1 // L_o
-    a_shared = None if fb.fit_depth else reconstruction_weights(z_r, fb.M)
+    a_shared = None
+    if not fb.fit_depth:
+        a_shared = [reconstruction_weights(z_r, fb.M)]
+        if band > 0.0:
+            a_shared.append(band_drop_weights(z_r, band, fb.M))
 
     def lookup(q, rho, mask):
         return _lookup(fb, row * n_o + q, row * R + rho, z_r, a_shared, clamp,
-                       exact_bounds, mask)
+                       exact_bounds, mask, band)
 
     v0, W0 = lookup(j0, rho0, active)
     v1, W1 = lookup(j1, rho1, active)
-    num = (1.0 - f) * W0 * v0 + f * W1 * v1
+    num = [(1.0 - f) * W0 * a + f * W1 * b for a, b in zip(v0, v1)]
     den = (1.0 - f) * W0 + f * W1
     for r in range(R - 1):                    # ends of the regions in front (§3.3)
         before1 = rho1 > r
         c = dr.select(rho0 > r, 1.0 - f, 0.0) + dr.select(before1, f, 0.0)
         end_r = dr.minimum((r + 1) * L_o, n_o) - 1
         v_e, W_e = lookup(end_r, mi.UInt32(r), before1 & active)
-        num += c * W_e * v_e
+        num = [x + c * W_e * v for x, v in zip(num, v_e)]
         den += c * W_e
-    return dr.select(den > 0.0, num / den, 1.0)
+    V = dr.select(den > 0.0, num[0] / den, 1.0)
+    if band <= 0.0:
+        return V
+    return V, dr.select(den > 0.0, num[1] / den, 0.0)
 
 
-def _lookup(fb, texel, rr, z_r, a_shared, clamp, exact_bounds, active):
+def _lookup(fb, texel, rr, z_r, a_shared, clamp, exact_bounds, active, band=0.0):
     """Regional average visibility ``v`` and weight sum ``W`` at a texel
-    (flat index ``row·n + q``) of region ``rr`` (flat ``row·R + ρ``)."""
+    (flat index ``row·n + q``) of region ``rr`` (flat ``row·R + ρ``); ``v`` a
+    list: ``[v]``, or with ``band`` ``[v, drop]`` (:func:`filtered_visibility`)."""
     z_lo = dr.gather(mi.Float, fb.z_lo.array, rr, active)
     z_hi = dr.gather(mi.Float, fb.z_hi.array, rr, active)
     bounded = exact_bounds or fb.fit_depth
     inside = active & ((z_r > z_lo) & (z_r <= z_hi) if bounded else True)
     if a_shared is None:
         offset, scale = depth_map(z_lo, z_hi, True)
-        a = reconstruction_weights((z_r - offset) * scale, fb.M)
+        z_m = (z_r - offset) * scale
+        a_sets = [reconstruction_weights(z_m, fb.M)]
+        if band > 0.0:
+            a_sets.append(band_drop_weights(z_m, band * scale, fb.M))
     else:
-        a = a_shared
+        a_sets = a_shared
     base = texel * fb.M
     source = fb.B_bar.array
-    dot = mi.Float(0.0)
+    dots = [mi.Float(0.0) for _ in a_sets]
     for m in range(fb.M):
-        dot = dr.fma(a[m], mi.Float(dr.gather(type(source), source, base + m, inside)), dot)
-    v = dot + 0.5
+        b = mi.Float(dr.gather(type(source), source, base + m, inside))
+        dots = [dr.fma(a[m], b, dot) for a, dot in zip(a_sets, dots)]
+    v = dots[0] + 0.5
     if clamp:
         v = dr.clip(v, 0.0, 1.0)
     if bounded:
         v = dr.select(z_r <= z_lo, 1.0, dr.select(z_r > z_hi, 0.0, v))
+    values = [v]
+    if band > 0.0:
+        values.append(dr.select(inside, dots[1], 0.0))
     W = dr.gather(mi.Float, fb.W.array, texel, active)
-    return v, W
+    return values, W
 
 
 def filtered_visibility_reference(z_row, weights, j: float, z_r: float, M: int = DEFAULT_M,

@@ -37,29 +37,37 @@ def texel_kernel(params, queries, rays, sigma_t: float):
 
 
 def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
-                  active=True, recurrence: bool = True) -> mi.Float:
+                  active=True, recurrence: bool = True, tail=None, idx=None) -> mi.Float:
     """V̄_q of every query in ``active`` (module doc; 1 elsewhere and where
     the covered weight is 0).  ``beta_b``, ``L``: (n·d) per light ray;
     ``cover``: :class:`~integrators.fourier_setup.Coverage`.  Equal light
     rays of a directional light take the kernel by recurrence
     (e^{-c γ_{g+1}} = e^{-c γ_g} e^{-c Δγ}; ``recurrence=False``: per texel,
-    as the others)."""
+    as the others).  ``tail``: the runs behind each query's last visibility
+    change traced on its own ray
+    (:func:`~integrators.fourier_tail.tail_visibility`), which replace the
+    map's visibility there.  ``idx``: only these queries (the result has
+    one value per entry of ``idx``; ``active`` then refers to them)."""
     d = rays.d
-    first = queries.row * d
-    k0 = cover.texel - first                  # last (partly) covered texel
-    tan = dr.tan(0.5 * queries.beta)
-    beta = queries.beta
+    row, beta, texel, frac = queries.row, queries.beta, cover.texel, cover.frac
+    if idx is not None:
+        row, beta, texel, frac = (dr.gather(type(x), x, idx) for x in (row, beta, texel, frac))
+        tail = None if tail is None else tail.subset(idx)
+    count = dr.width(beta)
+    first = row * d
+    k0 = texel - first                        # last (partly) covered texel
+    tan = dr.tan(0.5 * beta)
     active = mi.Bool(active)
     geometric = (recurrence and light_model(params).kernel_recurrence
                  and not isinstance(rays, ProjectiveLightRays))
     if geometric:
         c = sigma_t * tan
-        k_first = dr.exp(-c * rays.start(queries.row))
-        step = dr.exp(-c * dr.gather(mi.Float, rays.delta_gamma, queries.row))
+        k_first = dr.exp(-c * rays.start(row))
+        step = dr.exp(-c * dr.gather(mi.Float, rays.delta_gamma, row))
         kernel = None
     else:
         kernel = texel_kernel(params, queries, rays, sigma_t)
-        k_first = step = dr.zeros(mi.Float, queries.count)
+        k_first = step = dr.zeros(mi.Float, count)
 
     def cond(g, k, num, den):
         return active & (g <= k0)
@@ -68,12 +76,14 @@ def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
         t = first + g
         K = k if geometric else kernel(t, tan)
         w = dr.gather(mi.Float, L, t) * K
-        w = dr.select(g == k0, w * cover.frac, w)
+        w = dr.select(g == k0, w * frac, w)
         lit = beta <= dr.gather(mi.Float, beta_b, t)
+        if tail is not None:
+            lit = tail.visibility(g, lit)
         return g + 1, k * step, num + dr.select(lit, w, 0.0), den + w
 
-    zeros = dr.zeros(mi.Float, queries.count)
-    _, _, num, den = dr.while_loop((dr.zeros(mi.UInt32, queries.count), mi.Float(k_first),
+    zeros = dr.zeros(mi.Float, count)
+    _, _, num, den = dr.while_loop((dr.zeros(mi.UInt32, count), mi.Float(k_first),
                                     zeros, mi.Float(zeros)), cond, body,
                                    labels=("g", "k", "num", "den"), label="fourier_exact_average")
     return dr.select(den > 0.0, num / den, 1.0)

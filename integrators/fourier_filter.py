@@ -32,12 +32,14 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choos
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
 from .fourier_exact import exact_average
+from .fourier_tail import tail_visibility
 from .fourier_rows import rectified_size, row_spacing
 from .fourier_references import interpolated_sum, reference_rays, restrict_rows, row_kernel
 from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
-                            ProjectiveLightRays, prefilter_rows, projective_light_rays,
-                            projective_query_terms, projective_x_range, query_beta_range,
-                            rectified_shadow_map, reference_angle, series_sum,
+                            ProjectiveLightRays, near_band, near_step_weight, prefilter_rows,
+                            projective_light_rays, projective_query_terms,
+                            projective_x_range, query_beta_range, rectified_shadow_map,
+                            reference_angle, series_sum, series_unreliable,
                             series_visibility, shadowed_sum, texel_blocker_angles,
                             texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
@@ -337,6 +339,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         self.projective_splits = read_number(props, "projective_splits", 0, minimum=0,
                                              maximum=4096, integer=True)
         self.blockers = read_choice(props, "blockers", "traced", BLOCKERS)
+        self.exact_fallback = read_bool(props, "exact_fallback", True)
+        self.trace_ends = read_bool(props, "trace_ends", True)
 
     @property
     def filter_settings(self) -> FilterSettings:
@@ -450,12 +454,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             smap = self.rectified_map(queries, rays, beta_b)
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
+            tail = (tail_visibility(params, cap, queries, rays, beta_b, cover)
+                    if self.trace_ends else None)
+            self.record(tail_traced=0 if tail is None else tail.traced)
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V = [], []
         for c in range(channels(L, A)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                         float(sigma_t[c]), length, beta_b)
+                                         float(sigma_t[c]), length, beta_b, tail)
             U.append(U_c)
             V.append(V_c)
         return RectifiedSums(rays, beta_b, U, V, colour)
@@ -484,7 +491,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return model.resample_blockers(params, queries, rays, shadow_map, 1)
 
     def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float,
-                     length: float = 0.0, beta_b=None):
+                     length: float = 0.0, beta_b=None, tail=None):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
         with ``clamp``, Appendix A); ``length``: the decay length of the
@@ -494,27 +501,52 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             keep.append(U)
         if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
             with self.stage("evaluate") as keep:
-                V = exact_average(params, queries, rays, beta_b, cover, parts.L, sigma_t)
+                V = exact_average(params, queries, rays, beta_b, cover, parts.L, sigma_t,
+                                  tail=tail)
                 keep.append(V)
             return U, V
         refs = None
         if self.weights == "reference_ray":
             refs = reference_rays(queries, sigma_t, length, self.reference_rays)
         if self.weights == "exact":
-            S = self.exact_sum(queries, smap, cover, parts)
-            V = dr.select(U > 0.0, S / U, 1.0)
+            S_K, S, P, near = self.exact_sum(queries, smap, cover, parts)
+            V = dr.select(U > 0.0, S_K / U, 1.0)
         elif refs is not None and refs.count > 1:      # several reference rays per row
-            V = self.interpolated_average(params, queries, rays, smap, cover, parts.L,
-                                          sigma_t, refs)
+            V, S, P, near = self.interpolated_average(params, queries, rays, smap, cover,
+                                                      parts.L, sigma_t, refs, beta_b, tail)
         else:
             w = parts.L * (texel_size(rays) if self.weights == "average" else
                            reference_kernel(params, queries, rays, sigma_t, self.reference))
-            V = self.filtered_average(queries, smap, cover, w, self.clamp)
+            V, S, P, near = self.filtered_average(queries, smap, cover, w, self.clamp,
+                                                  beta_b, tail)
         with self.stage("evaluate") as keep:
             if self.clamp:
                 V = dr.clip(V, 0.0, 1.0)
+            if self.exact_fallback:
+                V = self.fallback(params, queries, rays, beta_b, cover, parts.L, sigma_t,
+                                  tail, V, series_unreliable(near, S, P),
+                                  with_runs=self.weights == "exact")
             keep.append(V)
         return U, V
+
+    def fallback(self, params, queries, rays, beta_b, cover, L, sigma_t: float, tail, V,
+                 unreliable, with_runs: bool = False):
+        """``V`` with the exact sum (:func:`~integrators.fourier_exact.exact_average`,
+        the traced end runs included) at the ``unreliable`` queries, and with
+        ``with_runs`` at those whose end run was traced
+        (:mod:`integrators.fourier_tail`; ``weights="exact"``, whose
+        component filters take no run correction);
+        ``stats["exact_fallback"]`` counts them (last colour channel)."""
+        if tail is not None and with_runs:
+            unreliable |= tail.runs()
+        idx = dr.compress(unreliable)
+        self.record(exact_fallback=dr.width(idx))
+        if not dr.width(idx):
+            return V
+        V = mi.Float(V)
+        dr.scatter(V, exact_average(params, queries, rays, beta_b, cover, L, sigma_t,
+                                    tail=tail, idx=idx), idx)
+        return V
 
     def exact_visibility(self, params) -> bool:
         """The direct sum: ``visibility="exact"``, or ``auto`` without filter
@@ -525,45 +557,69 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             return False
         return self.visibility == "exact" or light_model(params).auto_direct_sum
 
-    def filtered(self, queries, smap, cover, w, clamp: bool):
+    def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
-        evaluate the series visibility of every query (``evaluate``)."""
+        evaluate the series visibility of every query (``evaluate``);
+        ``band`` True: ``(V, near)``, also the near-step weight
+        (:func:`~integrators.fourier_setup.near_step_weight`); False: ``(V, 0)``."""
         opt = self.filter_settings
         with self.stage("prefilter") as keep:
             fb = prefilter_rows(smap, w, opt)
             if fb is not None:
                 keep.extend([fb.B_bar, fb.W])
         with self.stage("evaluate") as keep:
-            V = series_visibility(smap, fb, queries, cover, opt, clamp)
-            keep.append(V)
-        return V
+            if not band:
+                V = series_visibility(smap, fb, queries, cover, opt, clamp)
+                keep.append(V)
+                return V if band is None else (V, dr.zeros(mi.Float, queries.count))
+            V, drop = series_visibility(smap, fb, queries, cover, opt, clamp,
+                                        near_band(self.M))
+            near = near_step_weight(smap, cover, w, drop)
+            keep.extend([V, near])
+        return V, near
 
     def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
-                             refs):
-        """Weighted average visibility with the weights of each query's mix
-        of its two nearest reference rays (:mod:`integrators.fourier_references`),
-        one filter per reference ray."""
+                             refs, beta_b=None, tail=None):
+        """(V̄, S, P, near): the weighted average visibility with the weights
+        of each query's mix of its two nearest reference rays
+        (:mod:`integrators.fourier_references`), one filter per reference
+        ray, and its shadowed, unshadowed and near-step weight sums;
+        ``tail``: the traced end runs replace the map's visibility
+        (:meth:`~integrators.fourier_tail.TailVisibility.correction`)."""
         def weighted_sum(k, rows):
             w = L * row_kernel(params, queries, rays, sigma_t, refs.beta[k])
             sub = smap if k < 2 else restrict_rows(smap, rows)
-            V_series = self.filtered(queries, sub, cover, w, self.clamp)
-            return shadowed_sum(smap, cover, w, V_series), cover.sum(w)
+            V_series, near = self.filtered(queries, sub, cover, w, self.clamp,
+                                           band=self.exact_fallback)
+            S = shadowed_sum(smap, cover, w, V_series)
+            if tail is not None:
+                S += tail.correction(queries, cover, beta_b, w)
+            return S, cover.sum(w), near
 
-        S, P = interpolated_sum(refs, weighted_sum)
-        return dr.select(P > 0.0, S / P, 1.0)
+        S, P, near = interpolated_sum(refs, weighted_sum)
+        return dr.select(P > 0.0, S / P, 1.0), S, P, near
 
-    def filtered_average(self, queries, smap, cover, w, clamp: bool):
-        """Weighted average visibility with one filter of weights ``w``
-        (§3.1, §3.2): (Σ_lit w + Σ_series w · V̄) / Σ w."""
-        V_series = self.filtered(queries, smap, cover, w, clamp)
+    def filtered_average(self, queries, smap, cover, w, clamp: bool, beta_b=None, tail=None):
+        """(V̄, S, P, near): the weighted average visibility with one filter of
+        weights ``w`` (§3.1, §3.2): (Σ_lit w + Σ_series w · V̄) / Σ w, its
+        numerator S, denominator P and near-step weight; ``tail`` as
+        :meth:`interpolated_average`."""
+        V_series, near = self.filtered(queries, smap, cover, w, clamp, band=self.exact_fallback)
         P = cover.sum(w)
-        return dr.select(P > 0.0, shadowed_sum(smap, cover, w, V_series) / P, 1.0)
+        S = shadowed_sum(smap, cover, w, V_series)
+        if tail is not None:
+            S += tail.correction(queries, cover, beta_b, w)
+        return dr.select(P > 0.0, S / P, 1.0), S, P, near
 
     def exact_sum(self, queries, smap, cover, parts):
-        """Σ_n B_n(β) Σ_γ L A_n V cover, every component through its own
-        filter with shifted, non-negative weights L (A_n + c_n), minus
-        c_n times the filter of weights L (class doc)."""
-        V0 = self.filtered(queries, smap, cover, parts.L, clamp=False)
+        """(S, S_L, P_L, near): S = Σ_n B_n(β) Σ_γ L A_n V cover, every
+        component through its own filter with shifted, non-negative weights
+        L (A_n + c_n), minus c_n times the filter of weights L (class doc);
+        S_L, P_L and near: the shadowed, unshadowed and near-step sums of
+        the weights L (what :func:`~integrators.fourier_setup.series_unreliable`
+        judges)."""
+        V0, near = self.filtered(queries, smap, cover, parts.L, clamp=False,
+                                 band=self.exact_fallback)
         S0 = series_sum(smap, cover, parts.L, V0)              # Σ_series L V
         S = dr.zeros(mi.Float, queries.count)
         for a, b in zip(parts.A, parts.B):
@@ -573,7 +629,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             lit = cover.sum(dr.select(smap.lit, parts.L * a, 0.0))
             S += b * (lit + series_sum(smap, cover, w, Vn)
                       - dr.gather(mi.Float, shift, queries.row) * S0)
-        return S
+        S_L = cover.sum(dr.select(smap.lit, parts.L, 0.0)) + S0
+        return S, S_L, cover.sum(parts.L), near
 
     def to_string(self):
         return (f"FourierFilterIntegrator[coefficients={self.M}, weights={self.weights}, "

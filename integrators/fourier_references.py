@@ -156,18 +156,18 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
 
 
 def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:
-    """(S, P) per query: Σ_k share_k S_k and Σ_k share_k P_k, where
-    ``weighted_sum(k, rows)`` returns (S_k, P_k), the shadowed and the
-    unshadowed weighted sums of reference ray k (needed only in the
-    ``rows`` that have one, :meth:`ReferenceRays.rows_with`)."""
-    S = dr.zeros(mi.Float, dr.width(refs.frac))
-    P = dr.zeros(mi.Float, dr.width(refs.frac))
+    """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
+    that ``weighted_sum(k, rows)`` returns: the shadowed and the unshadowed
+    weighted sums of reference ray k, and any further sums of its weights
+    (needed only in the ``rows`` that have one, :meth:`ReferenceRays.rows_with`)."""
+    out = None
     for k in range(refs.count):
         share = refs.share(k)
-        S_k, P_k = weighted_sum(k, refs.rows_with(k))
-        S += dr.select(share > 0.0, share * S_k, 0.0)
-        P += dr.select(share > 0.0, share * P_k, 0.0)
-    return S, P
+        sums = weighted_sum(k, refs.rows_with(k))
+        if out is None:
+            out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+        out = [x + dr.select(share > 0.0, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+    return tuple(out)
 
 
 def restrict_rows(smap, rows: mi.Bool):

@@ -1,0 +1,191 @@
+"""The end of each view ray in ``fourier_filter``'s rectified map: the short
+run of texels behind its last visibility change, traced on the query's own
+ray (beyond Klehm et al. 2014).
+
+A camera sample is a query of its nearest slice (or of both neighbours) at
+its own β and depth, but the blockers it reads are those of the *slice's*
+plane, up to half a slice spacing from its own ray (Baran §8).  Where the
+ray ends on a surface, that surface is also the blocker of the light rays
+around the end point (the end point is, or lies behind, the first blocker
+of its light ray), so the texels next to the end are where the slice's
+plane and the ray's own disagree: in the slice's plane the view ray at β
+meets the surface a little before (or after) the query's depth and the
+texels in between hold the other side of the surface.  Seen from the
+shadowed side -- a point light inside a closed box, the camera outside it
+-- the slice's plane puts the inside of the box, lit, on the last texels:
+light at the end of a ray that is in shadow all along, with the 1/r² of
+fog next to the light (issue 12, random stress seed 43: 2.3e-3 of the
+unoccluded peak with the exact sum).  Seen from the lit side it darkens
+the end of the ray.
+
+:func:`tail_visibility` finds, per query, the run of texels behind the last
+change of the map's visibility at the query's β, ``V(g, β) = [β ≤ β_b(g)]``,
+and where that run is short (at most ``TAIL_TEXELS`` texels, the change not
+at the ray's first texel) traces one shadow ray per texel of it from the
+middle of the texel's covered part on the query's own camera ray
+(:func:`~integrators.light_transport.visible_exact`), as a ray marcher
+would.  A longer run is a shadow or a lit stretch of the slice itself and
+is kept.  :func:`~integrators.fourier_exact.exact_average` takes the traced
+run instead of the map's visibility.  The epipolar tree's counterpart is
+:func:`~integrators.epipolar_setup.last_interval_visibility` (one light-ray
+interval of four sub-rays; the filter's texels are that interval's
+quarters, hence a run of several).
+
+NumPy oracle of the run search: :func:`tail_run_reference`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from rectify.coords import ray_meeting_t
+
+from .epipolar_setup import EqualLightRays
+from .light_transport import sample_light, segment_box, visible_exact
+
+#: longest run of texels behind the last visibility change that is traced
+TAIL_TEXELS = 8
+#: a shadow ray starts at least this far [× scene extent] before the
+#: surface the view ray ends on
+TAIL_EPS = 1e-5
+#: no run (the query is not traced)
+NO_RUN = 0xFFFFFFFF
+
+
+@dataclass(eq=False)
+class TailVisibility:
+    """The traced runs: ``first`` (Q,) the first texel (row-local) of each
+    query's traced run, ``NO_RUN`` where none; ``base`` (Q,) its offset in
+    ``V``; ``V`` the traced visibility (1/0) of every run texel;
+    ``traced``: how many queries were traced."""
+    first: mi.UInt32
+    base: mi.UInt32
+    V: mi.Float
+    traced: int
+    slots: int = TAIL_TEXELS      # slots of ``V`` per traced query
+    idx: mi.UInt32 | None = None  # (traced,) the traced queries
+
+    def subset(self, idx) -> "TailVisibility":
+        """The runs of queries ``idx`` (the same traced values)."""
+        return TailVisibility(dr.gather(mi.UInt32, self.first, idx),
+                              dr.gather(mi.UInt32, self.base, idx), self.V, self.traced,
+                              self.slots)
+
+    def correction(self, queries, cover, beta_b, w) -> mi.Float:
+        """(Q,) Σ over each traced run of w_g c_g (V_traced − V_map): what
+        the traced run changes in a weighted sum over the query's texels
+        that counted the map's visibility there (``w`` (n·d) per texel,
+        ``c_g`` the covered part).  0 where nothing was traced."""
+        out = dr.zeros(mi.Float, queries.count)
+        if not self.traced:
+            return out
+        q = self.idx
+        d = cover.d
+        row0 = dr.gather(mi.UInt32, queries.row, q) * d
+        texel = dr.gather(mi.UInt32, cover.texel, q)
+        frac = dr.gather(mi.Float, cover.frac, q)
+        beta = dr.gather(mi.Float, queries.beta, q)
+        first = dr.gather(mi.UInt32, self.first, q)
+        base = dr.gather(mi.UInt32, self.base, q)
+        delta_sum = dr.zeros(mi.Float, self.traced)
+        for i in range(self.slots):
+            t = row0 + first + i
+            on = t <= texel
+            c = dr.select(t == texel, frac, 1.0)
+            lit = beta <= dr.gather(mi.Float, beta_b, t, on)
+            traced = dr.gather(mi.Float, self.V, base + i, on)
+            delta = traced - dr.select(lit, 1.0, 0.0)
+            delta_sum += dr.select(on, dr.gather(mi.Float, w, t, on) * c * delta, 0.0)
+        dr.scatter(out, delta_sum, q)
+        return out
+
+    def runs(self) -> mi.Bool:
+        """(Q,) the queries with a traced run."""
+        return self.first != NO_RUN
+
+    def visibility(self, g, lit):
+        """The map's ``lit`` (per lane, texel ``g`` row-local) with the
+        traced runs' texels replaced by their traced visibility."""
+        inside = (self.first != NO_RUN) & (g >= self.first)
+        k = dr.select(inside, self.base + g - self.first, 0)
+        return dr.select(inside, dr.gather(mi.Float, self.V, k, inside) > 0.5, lit)
+
+
+def tail_runs(queries, beta_b, cover, longest: int = TAIL_TEXELS):
+    """(first, k0) per query: the first texel (row-local) of the run of
+    texels with the visibility of the last covered texel ``k0`` at the
+    query's β, searched back at most ``longest + 1`` texels; ``first`` is
+    ``NO_RUN`` where the run is longer than ``longest`` or reaches texel 0
+    (no change behind the ray's end)."""
+    d = cover.d
+    row0 = queries.row * d
+    k0 = cover.texel - row0
+    beta = queries.beta
+    last = beta <= dr.gather(mi.Float, beta_b, cover.texel)
+    first = mi.UInt32(k0)
+    open_run = mi.Bool(True)
+    for step in range(1, longest + 2):
+        has = open_run & (k0 >= step)
+        lit = beta <= dr.gather(mi.Float, beta_b, row0 + k0 - step, has)
+        same = has & (lit == last)
+        first = dr.select(same, k0 - step, first)
+        open_run = same
+    changed = (k0 > 0) & (first > 0) & ~open_run & (k0 + 1 - first <= longest)
+    return dr.select(changed, first, NO_RUN), k0
+
+
+def tail_run_reference(beta_b_row, beta: float, k0: int, longest: int = TAIL_TEXELS):
+    """NumPy oracle of :func:`tail_runs` for one query: the first texel of
+    the run behind the last visibility change, or None."""
+    lit = beta <= np.asarray(beta_b_row, np.float64)[:k0 + 1]
+    g = k0
+    while g > 0 and lit[g - 1] == lit[k0]:
+        g -= 1
+    if g == 0 or k0 + 1 - g > longest:
+        return None
+    return g
+
+
+def tail_visibility(params, cap, queries, rays, beta_b, cover,
+                    longest: int = TAIL_TEXELS) -> TailVisibility | None:
+    """Trace the short runs behind each query's last visibility change
+    (module doc); None for layouts without equal light rays (the
+    projective map)."""
+    if not isinstance(rays, EqualLightRays) or not queries.count:
+        return None
+    first, k0 = tail_runs(queries, beta_b, cover, longest)
+    run = first != NO_RUN
+    idx = dr.compress(run)
+    traced = dr.width(idx)
+    if traced == 0:
+        return TailVisibility(first, dr.zeros(mi.UInt32, queries.count),
+                              dr.zeros(mi.Float, 1), 0, longest)
+    # ``longest`` slots per traced query (its n-th in ``idx``: slots n·longest ...)
+    slot_of = dr.zeros(mi.UInt32, queries.count)
+    dr.scatter(slot_of, dr.arange(mi.UInt32, traced) * longest, idx)
+    lane = dr.arange(mi.UInt32, traced * longest)
+    q = dr.gather(mi.UInt32, idx, lane // longest)
+    g = dr.gather(mi.UInt32, first, q) + lane % longest
+    used = g <= dr.gather(mi.UInt32, k0, q)
+    row = dr.gather(mi.UInt32, queries.row, q)
+    sample = dr.gather(mi.UInt32, queries.sample, q)
+    covered = dr.select(g == dr.gather(mi.UInt32, k0, q), dr.gather(mi.Float, cover.frac, q),
+                        1.0)
+    gamma = rays.start(row) + (mi.Float(g) + 0.5 * covered) * \
+        dr.gather(mi.Float, rays.delta_gamma, row)
+    t, _ = ray_meeting_t(queries.frame, dr.gather(mi.Float, queries.beta, q), gamma)
+    t_near = dr.gather(mi.Float, queries.t_near, q)
+    t_end = t_near + dr.gather(mi.Float, cap.d, sample)
+    eps = TAIL_EPS * params.scene_extent
+    t = dr.clip(t, t_near, dr.maximum(t_end - eps, t_near))
+    x = (dr.gather(mi.Point3f, cap.o, sample)
+         + dr.gather(mi.Vector3f, cap.omega, sample) * (t - t_near))
+    wo, dist, _ = sample_light(params, x)
+    _, t_in, t_out = segment_box(params, x, wo, dist)
+    lit = visible_exact(params, x, wo, dist, t_in, t_out, active=used)
+    V = dr.select(used & lit, 1.0, 0.0)
+    dr.eval(V)
+    return TailVisibility(first, slot_of, V, traced, longest, idx)
