@@ -39,7 +39,17 @@ def texel_kernel(params, queries, rays, sigma_t: float):
 def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
                   active=True, recurrence: bool = True, tail=None, idx=None) -> mi.Float:
     """V̄_q of every query in ``active`` (module doc; 1 elsewhere and where
-    the covered weight is 0).  ``beta_b``, ``L``: (n·d) per light ray;
+    the covered weight is 0): :func:`exact_sums`' ratio."""
+    num, den = exact_sums(params, queries, rays, beta_b, cover, L, sigma_t, active,
+                          recurrence, tail, idx)
+    return dr.select(den > 0.0, num / den, 1.0)
+
+
+def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
+               active=True, recurrence: bool = True, tail=None, idx=None):
+    """(Σ_g w_g V cover, Σ_g w_g cover) per query in ``active`` (module doc;
+    0 elsewhere): the shadowed and the unshadowed sum with the query's own
+    weights.  ``beta_b``, ``L``: (n·d) per light ray;
     ``cover``: :class:`~integrators.fourier_setup.Coverage`.  Equal light
     rays of a directional light take the kernel by recurrence
     (e^{-c γ_{g+1}} = e^{-c γ_g} e^{-c Δγ}; ``recurrence=False``: per texel,
@@ -86,4 +96,4 @@ def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
     _, _, num, den = dr.while_loop((dr.zeros(mi.UInt32, count), mi.Float(k_first),
                                     zeros, mi.Float(zeros)), cond, body,
                                    labels=("g", "k", "num", "den"), label="fourier_exact_average")
-    return dr.select(den > 0.0, num / den, 1.0)
+    return num, den

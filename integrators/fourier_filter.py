@@ -31,7 +31,7 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choos
                              epipolar_frame_of)
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
-from .fourier_exact import exact_average
+from .fourier_exact import exact_average, exact_sums
 from .fourier_tail import tail_visibility
 from .fourier_rows import rectified_size, row_spacing
 from .fourier_references import interpolated_sum, reference_rays, restrict_rows, row_kernel
@@ -439,14 +439,17 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         frame_rays = rays
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
+        A = B = None        # the direct sum needs no separated kernel (its own gives U)
         with self.stage("svd") as keep:
-            if plan is not None:
+            if self.exact_visibility(params):
+                pass
+            elif plan is not None:
                 A, B = texel_separated_kernel(model, params, queries, rays,
                                               self.svd_rank, self.svd_tolerance)
             else:    # separated on the whole frame, evaluated at these rows
                 A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
                                               self.svd_tolerance, frame_rays=frame_rays)
-            keep.extend([A, B])
+            keep.extend([] if A is None else [A, B])
         with self.stage("rectify"):
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
@@ -459,7 +462,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             self.record(tail_traced=0 if tail is None else tail.traced)
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V = [], []
-        for c in range(channels(L, A)):
+        for c in range(channels(L, A, sigma_t)):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
                                          float(sigma_t[c]), length, beta_b, tail)
@@ -496,15 +499,20 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         the effective average visibility of ``weights`` (clamped to [0, 1]
         with ``clamp``, Appendix A); ``length``: the decay length of the
         reference rays (the light model's ``light_length``)."""
+        if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
+            with self.stage("evaluate") as keep:
+                # U from the query's own kernel too: the separated kernel's
+                # error is relative to the row's largest weight, which in a
+                # thick medium dwarfs a query's own sum (random stress seed
+                # 31: U < 0)
+                S, U = exact_sums(params, queries, rays, beta_b, cover, parts.L, sigma_t,
+                                  tail=tail)
+                V = dr.select(U > 0.0, S / U, 1.0)
+                keep.extend([U, V])
+            return U, V
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
-        if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
-            with self.stage("evaluate") as keep:
-                V = exact_average(params, queries, rays, beta_b, cover, parts.L, sigma_t,
-                                  tail=tail)
-                keep.append(V)
-            return U, V
         refs = None
         if self.weights == "reference_ray":
             refs = reference_rays(queries, sigma_t, length, self.reference_rays)
@@ -714,11 +722,13 @@ def _channel_count(t: mi.TensorXf, axis: int) -> int:
     return t.shape[axis] if len(t.shape) > axis else 1
 
 
-def channels(L: mi.TensorXf, A: mi.TensorXf) -> int:
+def channels(L: mi.TensorXf, A: mi.TensorXf | None, sigma_t) -> int:
     """Colour channels the filters run for: 3 if the per-light-ray factor
     L (n, d[, 3]) or the kernel A (n, d, C, N) is coloured (coloured σt, or
-    a textured spot light's colour per light ray), else 1."""
-    return max(_channel_count(L, 2), A.shape[2])
+    a textured spot light's colour per light ray), else 1; without a
+    separated kernel (A None, the direct sum) σt says whether it is coloured."""
+    kernel = A.shape[2] if A is not None else (1 if np.all(sigma_t == sigma_t[0]) else 3)
+    return max(_channel_count(L, 2), kernel)
 
 
 class KernelParts:
@@ -735,6 +745,8 @@ class KernelParts:
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
         CL = _channel_count(L, 2)
         L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
+        if A is None:             # the direct sum: no separated kernel
+            return KernelParts(L_c, [], [])
         C, N = A.shape[2], A.shape[3]
         c = min(c, C - 1)
         A_c, B_c = [], []
