@@ -8,8 +8,9 @@ Three measurements, all against the exact working reference
 1. *accuracy*: every suite scene and every stress scene of
    :mod:`scenes.fourier_stress` at the defaults (``default``) and with
    Klehm's single reference ray per row on the nearest slice (``paper``:
-   ``reference_rays=1, slice_interpolation=false``, what the defaults were
-   before issue 12: the Fourier filter, M = 32):
+   ``reference_rays=1, slice_interpolation=false, exact_fallback=false,
+   trace_ends=false``, what the defaults were before issue 12: the Fourier
+   filter, M = 32):
    scale-free relMSE, mean ratio,
    largest pixel error over the reference peak, non-finite pixels, and the
    light on reference-black pixels (reference below 1e-4 of its peak): the
@@ -41,7 +42,8 @@ from . import common as c
 
 NAME = "fourier_defaults"
 #: label -> fourier_filter properties
-MODES = {"default": {}, "paper": {"reference_rays": 1, "slice_interpolation": False}}
+MODES = {"default": {}, "paper": {"reference_rays": 1, "slice_interpolation": False,
+                                  "exact_fallback": False, "trace_ends": False}}
 #: (the default: ``visibility="auto"`` = the exact sum, slice interpolation
 #: with the re-march of disagreeing samples; ``paper`` sets a filter
 #: property, so ``auto`` takes the Fourier filter, on the nearest slice)
@@ -167,6 +169,74 @@ def timing(s: dict, repeats: int, progress: bool) -> list[dict]:
     return rows
 
 
+def measure_time(name: str, w: int, h: int, repeats: int) -> dict:
+    """This process's tree: the defaults' warm median time (end to end and
+    scattering) on one suite scene, 1 spp at pixel centres."""
+    scene = c.load(c.scene_file(name), c.resolution(w, h))
+    t = c.time_renders(scene, {"default": c.build("fourier_filter", {})},
+                       repeats=repeats)["default"]
+    return {"scene": name, "time_s": t["time_s"], "scattering_s": t["scattering_s"],
+            "first_run_s": t["first_run_s"], "stages": t["stages"], "load": c.load_average()}
+
+
+def before_after(before: str, names: list, w: int, h: int, repeats: int,
+                 rounds: int) -> list[dict]:
+    """The defaults' cost in two source trees (``before``, e.g. a detached
+    worktree of main, and this one), each scene measured by ``rounds``
+    pairs of processes in alternating order, each process importing its own
+    tree's ``integrators`` (:func:`measure_time`, warm, median of ``repeats``)."""
+    import json
+    import os
+    import subprocess
+    from pathlib import Path
+
+    here = str(Path(__file__).resolve().parents[1])
+    trees = {"before": str(Path(before).resolve()), "after": here}
+
+    def run(tree, name):
+        env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
+        out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure-time",
+                              name, "--time-size", f"{w}x{h}", "--repeats", str(repeats)],
+                             cwd=tree, env=env, capture_output=True, text=True,
+                             check=True).stdout
+        line = [x for x in out.splitlines() if x.startswith("RESULT ")][-1]
+        return json.loads(line[len("RESULT "):])
+
+    rows = []
+    for name in names:
+        for k in range(rounds):
+            order = ["before", "after"] if k % 2 == 0 else ["after", "before"]
+            for label in order:
+                r = run(trees[label], name)
+                rows.append({"tree": label, "round": k, "width": w, "height": h, **r})
+                print(label, name, c.fmt(r["time_s"]), flush=True)
+    return rows
+
+
+def cost_table(rows: list[dict], repeats: int) -> str:
+    """Median over rounds of each tree's time per scene, and after / before."""
+    names = list(dict.fromkeys(r["scene"] for r in rows))
+    body = []
+    for n in names:
+        t = {lab: float(np.median([r["time_s"] for r in rows
+                                   if r["scene"] == n and r["tree"] == lab]))
+             for lab in ("before", "after")}
+        sc = {lab: float(np.median([r["scattering_s"] for r in rows
+                                    if r["scene"] == n and r["tree"] == lab]))
+              for lab in ("before", "after")}
+        body.append([n, c.fmt(1000 * t["before"]), c.fmt(1000 * t["after"]),
+                     c.fmt(t["after"] / t["before"]), c.fmt(1000 * sc["before"]),
+                     c.fmt(1000 * sc["after"])])
+    w, h = rows[0]["width"], rows[0]["height"]
+    rounds = 1 + max(r["round"] for r in rows)
+    return "\n\n".join([
+        f"# fourier_filter defaults: cost before and after ({w}x{h}, 1 spp, warm)",
+        f"Each tree in its own process, {rounds} rounds in alternating order, each the "
+        f"median of {repeats} warm renders; the table takes the median over rounds.",
+        c.markdown_table(["scene", "before [ms]", "after [ms]", "after / before",
+                          "scattering before [ms]", "scattering after [ms]"], body)])
+
+
 def random_stress(n: int, steps: int) -> list[dict]:
     """The randomised scenes of :mod:`experiments.random_scenes` (seeds
     0..n-1, their own small sizes) at the defaults against the exact
@@ -208,8 +278,9 @@ def report(acc, thick, times, s, repeats) -> str:
              "(scattering only). relMSE: scale-free (eps = 1e-2 · mean(ref)²). "
              f"Leak: light on reference-black pixels (ref < {BLACK:g} · peak) over the peak; "
              f"leak px: how many exceed {BLACK:g} · peak. `paper`: reference_rays=1, "
-             "slice_interpolation=false (Klehm's single reference ray on the nearest slice, "
-             "the defaults before issue 12)."]
+             "slice_interpolation=false, exact_fallback=false, trace_ends=false (Klehm's "
+             "single reference ray on the nearest slice, the series alone: the defaults "
+             "before issue 12)."]
     header = ["scene", "mode", "relMSE", "mean ratio", "max err/peak", "leak max", "leak px",
               "black px", "non-finite"]
     body = [[r["scene"], r["mode"], c.fmt(r.get("relmse")), c.fmt(r.get("mean_ratio"), 4),
@@ -253,13 +324,34 @@ def main(argv=None):
     p.add_argument("--time-size", default=None, help="WxH of the timing (default 640x480)")
     p.add_argument("--scenes", nargs="+", default=None)
     p.add_argument("--out", default=None)
+    p.add_argument("--before", default=None,
+                   help="source tree to time the defaults against (with --time-only)")
+    p.add_argument("--rounds", type=int, default=3, help="process pairs per scene (--before)")
+    p.add_argument("--measure-time", default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     s = settings_for(args.quick)
     if args.scenes:
         s["scenes"] = args.scenes
     if args.time_size:
         s["time_size"] = tuple(int(v) for v in args.time_size.lower().split("x"))
+    if args.measure_time:            # one tree's timing, for before_after
+        import json
+        w, h = s["time_size"]
+        print("RESULT " + json.dumps(measure_time(args.measure_time, w, h, args.repeats)))
+        return 0
     out = c.output_dir(NAME, args.out, args.quick)
+    if args.before:
+        w, h = s["time_size"]
+        names = args.scenes or ["spot_room", "nave_onscreen"]
+        rows = before_after(args.before, names, w, h, args.repeats, args.rounds)
+        text = cost_table(rows, args.repeats)
+        print(text)
+        c.write_csv(out / "before_after.csv", rows)
+        c.write_json(out / "before_after.json", {"name": NAME, "before": args.before,
+                                                 "size": [w, h], "repeats": args.repeats,
+                                                 "rounds": args.rounds}, rows)
+        c.write_text(out / "before_after.md", text)
+        return 0
     if args.random:
         rows = random_stress(args.random, s["reference_steps"])
         c.write_csv(out / "random.csv", rows)

@@ -139,6 +139,23 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     U(β) uses the same separated kernel (prefix sums of L A_n, no filter).
     Rows with no blocker in view take U directly (closed form, no filter).
 
+    Where the series is no estimate (beyond the paper; ``exact_fallback``):
+    a query whose series texels within 2/M of its own depth (where the
+    truncated series blurs the step) weigh more than twice its filtered sum
+    -- fog right behind its blocker: in front of a surface seen from its
+    shadowed side, along a ray grazing an occluder -- takes the exact sum
+    (:func:`~integrators.fourier_setup.series_unreliable`,
+    :mod:`integrators.fourier_exact`); ``stats["exact_fallback"]``.
+
+    The end of each view ray (beyond the paper; ``trace_ends``): a sample
+    reads the blockers of its slice's plane, up to half a slice spacing
+    from its own ray, and the surface a ray ends on is the blocker of the
+    light rays around its end; the short run of texels behind the last
+    change of visibility before the end is traced on the sample's own ray
+    (:mod:`integrators.fourier_tail`; epipolar slices;
+    ``stats["tail_traced"]``).  The direct sum (``visibility``) takes U from
+    the query's own kernel too, no separated kernel.
+
     ``rectification="projective"`` (Klehm §4.2, directional light):
     the matrix of :func:`~rectify.projective.projective_rectification`
     maps every slice to a row and every light ray to a texel.  Rows are
@@ -210,6 +227,12 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     ``depth_range``            ``slice`` (default): each slice's β range,
                                texels outside it summed exactly; ``full``:
                                z = β/π (:mod:`integrators.fourier_setup`)
+    ``exact_fallback``         the exact sum where the series is mostly its
+                               blurred step (above; default true; false:
+                               the series alone, as the paper)
+    ``trace_ends``             trace the short run of texels behind each
+                               ray's last visibility change on its own ray
+                               (above; default true)
     ``slices``                 epipolar slices (projective: rows); 0
                                (default): automatic (sinh distribution;
                                projective: equal steps), every pixel
