@@ -38,7 +38,8 @@ import numpy as np
 import scenes
 from episcatter import metrics
 
-from . import common as c
+# absolute: --before runs this file in another tree's processes (its own ``experiments``)
+from experiments import common as c
 
 NAME = "fourier_defaults"
 #: label -> fourier_filter properties
@@ -244,7 +245,7 @@ def random_stress(n: int, steps: int) -> list[dict]:
     unoccluded peak (the scene without its occluders)."""
     import mitsuba as mi
 
-    from .random_scenes import scene_set
+    from experiments.random_scenes import scene_set
 
     rows = []
     for spec in scene_set(n):
