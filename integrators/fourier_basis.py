@@ -155,34 +155,40 @@ def basis_coefficients(z, M: int = DEFAULT_M) -> list:
     return [b for sc in zip(sines, cosines) for b in sc]
 
 
-def reconstruction_weights(z_r, M: int = DEFAULT_M) -> list:
+def reconstruction_weights(z_r, M: int = DEFAULT_M, harmonics=None) -> list:
     """Ray coefficients ``[a_1(z_r), .., a_M(z_r)]`` of Eq. 8 (Dr.Jit).
 
     ``a_{2k−1} = (2/c_k) cos(c_k z_r)``, ``a_{2k} = −(2/c_k) sin(c_k z_r)``, so
     that ``0.5 + Σ a_m(z_r) B_m(z_i)`` is the truncated series of Eq. 9.
+    ``harmonics``: the :func:`odd_harmonics` of ``z_r`` if already computed.
     """
-    sines, cosines = odd_harmonics(z_r, check_M(M) // 2)
+    sines, cosines = harmonics or odd_harmonics(z_r, check_M(M) // 2)
     a = []
     for c_k, s, c in zip(harmonic_frequencies(M), sines, cosines):
         a += [c * float(2.0 / c_k), s * float(-2.0 / c_k)]
     return a
 
 
-def band_drop_weights(z_r, band, M: int = DEFAULT_M) -> list:
+def band_drop_weights(z_r, band, M: int = DEFAULT_M, harmonics=None) -> list:
     """Ray coefficients ``[d_1(z_r), .., d_M(z_r)]`` of the drop of the
     truncated series across ``[z_r − band, z_r + band]`` (Dr.Jit):
     ``0.5 + a(z_r − band)·B − 0.5 − a(z_r + band)·B = d(z_r)·B`` with
     ``d_{2k−1} = (4/c_k) sin(c_k band) sin(c_k z_r)``,
     ``d_{2k} = (4/c_k) sin(c_k band) cos(c_k z_r)`` (angle addition), so that
     one more dot product with the same basis gives it.  ``band``: a float
-    or one per lane."""
+    (its sines on the host) or one per lane; ``harmonics``: the
+    :func:`odd_harmonics` of ``z_r`` if already computed."""
     K = check_M(M) // 2
-    sines, cosines = odd_harmonics(z_r, K)
-    band_sines, _ = odd_harmonics(band if isinstance(band, mi.Float) else mi.Float(band), K)
+    sines, cosines = harmonics or odd_harmonics(z_r, K)
+    c = harmonic_frequencies(M)
+    if isinstance(band, (int, float)):
+        band_sines = [float(x) for x in np.sin(c * float(band))]
+    else:
+        band_sines, _ = odd_harmonics(band, K)
     d = []
-    for c_k, s, c, sb in zip(harmonic_frequencies(M), sines, cosines, band_sines):
+    for c_k, s, co, sb in zip(c, sines, cosines, band_sines):
         g = sb * float(4.0 / c_k)
-        d += [g * s, g * c]
+        d += [g * s, g * co]
     return d
 
 
@@ -495,9 +501,10 @@ def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
         rho0, rho1 = j0 // L_o, j1 // L_o
     a_shared = None
     if not fb.fit_depth:
-        a_shared = [reconstruction_weights(z_r, fb.M)]
+        harmonics = odd_harmonics(z_r, fb.M // 2)
+        a_shared = [reconstruction_weights(z_r, fb.M, harmonics)]
         if band > 0.0:
-            a_shared.append(band_drop_weights(z_r, band, fb.M))
+            a_shared.append(band_drop_weights(z_r, band, fb.M, harmonics))
 
     def lookup(q, rho, mask):
         return _lookup(fb, row * n_o + q, row * R + rho, z_r, a_shared, clamp,
@@ -531,9 +538,10 @@ def _lookup(fb, texel, rr, z_r, a_shared, clamp, exact_bounds, active, band=0.0)
     if a_shared is None:
         offset, scale = depth_map(z_lo, z_hi, True)
         z_m = (z_r - offset) * scale
-        a_sets = [reconstruction_weights(z_m, fb.M)]
+        harmonics = odd_harmonics(z_m, fb.M // 2)
+        a_sets = [reconstruction_weights(z_m, fb.M, harmonics)]
         if band > 0.0:
-            a_sets.append(band_drop_weights(z_m, band * scale, fb.M))
+            a_sets.append(band_drop_weights(z_m, band * scale, fb.M, harmonics))
     else:
         a_sets = a_shared
     base = texel * fb.M

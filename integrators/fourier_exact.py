@@ -49,7 +49,8 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
                active=True, recurrence: bool = True, tail=None, idx=None):
     """(Σ_g w_g V cover, Σ_g w_g cover) per query in ``active`` (module doc;
     0 elsewhere): the shadowed and the unshadowed sum with the query's own
-    weights.  ``beta_b``, ``L``: (n·d) per light ray;
+    weights; ``L`` a list of per-light-ray factors (colour channels over one
+    kernel): lists of both sums, one pass.  ``beta_b``, ``L``: (n·d) per light ray;
     ``cover``: :class:`~integrators.fourier_setup.Coverage`.  Equal light
     rays of a directional light take the kernel by recurrence
     (e^{-c γ_{g+1}} = e^{-c γ_g} e^{-c Δγ}; ``recurrence=False``: per texel,
@@ -79,21 +80,38 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
         kernel = texel_kernel(params, queries, rays, sigma_t)
         k_first = step = dr.zeros(mi.Float, count)
 
-    def cond(g, k, num, den):
+    Ls = L if isinstance(L, list) else [L]
+    C = len(Ls)
+
+    def cond(g, k, *sums):
         return active & (g <= k0)
 
-    def body(g, k, num, den):
+    def body(g, k, *sums):
         t = first + g
         K = k if geometric else kernel(t, tan)
-        w = dr.gather(mi.Float, L, t) * K
-        w = dr.select(g == k0, w * frac, w)
+        K = dr.select(g == k0, K * frac, K)
         lit = beta <= dr.gather(mi.Float, beta_b, t)
-        if tail is not None:
-            lit = tail.visibility(g, lit)
-        return g + 1, k * step, num + dr.select(lit, w, 0.0), den + w
+        out = []
+        for c in range(C):
+            w = dr.gather(mi.Float, Ls[c], t) * K
+            out += [sums[c] + dr.select(lit, w, 0.0), sums[C + c] + w]
+        return (g + 1, k * step, *out[0::2], *out[1::2])
 
-    zeros = dr.zeros(mi.Float, count)
-    _, _, num, den = dr.while_loop((dr.zeros(mi.UInt32, count), mi.Float(k_first),
-                                    zeros, mi.Float(zeros)), cond, body,
-                                   labels=("g", "k", "num", "den"), label="fourier_exact_average")
-    return num, den
+    zeros = [dr.zeros(mi.Float, count) for _ in range(2 * C)]
+    state = dr.while_loop((dr.zeros(mi.UInt32, count), mi.Float(k_first), *zeros), cond, body,
+                          labels=("g", "k") + tuple(f"num{c}" for c in range(C))
+                          + tuple(f"den{c}" for c in range(C)), label="fourier_exact_sums")
+    num, den = list(state[2:2 + C]), list(state[2 + C:])
+    if tail is not None:     # the traced end runs instead of the map there
+        def kernel_at(t, q):
+            tq = dr.gather(mi.Float, tan, q)
+            if not geometric:
+                return kernel(t, tq)
+            r = dr.gather(mi.UInt32, row, q)
+            gamma = rays.start(r) + mi.Float(t - r * d) * dr.gather(mi.Float, rays.delta_gamma, r)
+            return dr.exp(-sigma_t * tq * gamma)
+        for c in range(C):
+            delta = tail.delta(row, texel, frac, beta, beta_b, d,
+                               lambda t, q: dr.gather(mi.Float, Ls[c], t) * kernel_at(t, q))
+            num[c] += dr.select(active, delta, 0.0)
+    return (num, den) if isinstance(L, list) else (num[0], den[0])

@@ -31,7 +31,7 @@ from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choos
                              epipolar_frame_of)
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
-from .fourier_exact import exact_average, exact_sums
+from .fourier_exact import exact_sums
 from .fourier_tail import tail_visibility
 from .fourier_rows import rectified_size, row_spacing
 from .fourier_references import interpolated_sum, reference_rays, restrict_rows, row_kernel
@@ -40,7 +40,7 @@ from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                             projective_light_rays, projective_query_terms,
                             projective_x_range, query_beta_range, rectified_shadow_map,
                             reference_angle, series_sum, series_unreliable,
-                            series_visibility, shadowed_sum, texel_blocker_angles,
+                            series_visibility, class_sums, texel_blocker_angles,
                             texel_separated_kernel)
 from .epipolar_template import EpipolarIntegrator
 from .row_subset import frame_choices, take_light_rays, take_rows
@@ -484,13 +484,23 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                     if self.trace_ends else None)
             self.record(tail_traced=0 if tail is None else tail.traced)
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-        U, V = [], []
-        for c in range(channels(L, A, sigma_t)):
+        U, V, Ls, unreliable = [], [], [], None
+        C = channels(L, A, sigma_t)
+        for c in range(C):
             parts = KernelParts.of(queries, rays, L, A, B, c)
-            U_c, V_c = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                         float(sigma_t[c]), length, beta_b, tail)
+            U_c, V_c, bad = self.channel_sums(params, queries, rays, smap, cover, parts,
+                                              float(sigma_t[c]), length, beta_b, tail)
             U.append(U_c)
             V.append(V_c)
+            Ls.append(parts.L)
+            if bad is not None:
+                unreliable = bad if unreliable is None else unreliable | bad
+        if unreliable is not None:
+            with self.stage("evaluate") as keep:
+                V = self.fallback(params, queries, rays, beta_b, cover, Ls,
+                                  [float(sigma_t[min(c, len(sigma_t) - 1)]) for c in range(C)],
+                                  tail, V, unreliable, with_runs=self.weights == "exact")
+                keep.extend(V)
         return RectifiedSums(rays, beta_b, U, V, colour)
 
     def rectified_map(self, queries, rays, beta_b):
@@ -532,7 +542,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                   tail=tail)
                 V = dr.select(U > 0.0, S / U, 1.0)
                 keep.extend([U, V])
-            return U, V
+            return U, V, None
         with self.stage("evaluate") as keep:
             U = parts.unshadowed(cover)
             keep.append(U)
@@ -553,30 +563,35 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         with self.stage("evaluate") as keep:
             if self.clamp:
                 V = dr.clip(V, 0.0, 1.0)
-            if self.exact_fallback:
-                V = self.fallback(params, queries, rays, beta_b, cover, parts.L, sigma_t,
-                                  tail, V, series_unreliable(near, S, P),
-                                  with_runs=self.weights == "exact")
-            keep.append(V)
-        return U, V
+            bad = series_unreliable(near, S, P) if self.exact_fallback else None
+            keep.extend([V] + ([] if bad is None else [bad]))
+        return U, V, bad
 
-    def fallback(self, params, queries, rays, beta_b, cover, L, sigma_t: float, tail, V,
-                 unreliable, with_runs: bool = False):
-        """``V`` with the exact sum (:func:`~integrators.fourier_exact.exact_average`,
-        the traced end runs included) at the ``unreliable`` queries, and with
-        ``with_runs`` at those whose end run was traced
+    def fallback(self, params, queries, rays, beta_b, cover, Ls, sigma_ts, tail, V,
+                 unreliable, with_runs: bool = False) -> list:
+        """Every channel's ``V`` (lists: per channel L and σt) with the exact
+        sum (:func:`~integrators.fourier_exact.exact_sums`, the traced end
+        runs included) at the queries ``unreliable`` in any channel, and
+        with ``with_runs`` at those whose end run was traced
         (:mod:`integrators.fourier_tail`; ``weights="exact"``, whose
-        component filters take no run correction);
-        ``stats["exact_fallback"]`` counts them (last colour channel)."""
+        component filters take no run correction); one pass for all
+        channels of a grey medium (their kernel is one);
+        ``stats["exact_fallback"]`` counts the queries."""
         if tail is not None and with_runs:
             unreliable |= tail.runs()
         idx = dr.compress(unreliable)
         self.record(exact_fallback=dr.width(idx))
         if not dr.width(idx):
             return V
-        V = mi.Float(V)
-        dr.scatter(V, exact_average(params, queries, rays, beta_b, cover, L, sigma_t,
-                                    tail=tail, idx=idx), idx)
+        groups = ([list(range(len(Ls)))] if len(set(sigma_ts)) == 1 else
+                  [[c] for c in range(len(Ls))])
+        V = [mi.Float(v) for v in V]
+        for group in groups:
+            S, P = exact_sums(params, queries, rays, beta_b, cover, [Ls[c] for c in group],
+                              sigma_ts[group[0]], tail=tail, idx=idx)
+            for c, S_c, P_c in zip(group, S, P):
+                # an average of 0s and 1s: [0, 1] but for float32 rounding
+                dr.scatter(V[c], dr.clip(dr.select(P_c > 0.0, S_c / P_c, 1.0), 0.0, 1.0), idx)
         return V
 
     def exact_visibility(self, params) -> bool:
@@ -591,8 +606,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
         evaluate the series visibility of every query (``evaluate``);
-        ``band`` True: ``(V, near)``, also the near-step weight
-        (:func:`~integrators.fourier_setup.near_step_weight`); False: ``(V, 0)``."""
+        ``band`` True: ``(V, drop)``, also the series' drop across the
+        near-step band (:func:`~integrators.fourier_setup.near_step_weight`);
+        False: ``(V, 0)``."""
         opt = self.filter_settings
         with self.stage("prefilter") as keep:
             fb = prefilter_rows(smap, w, opt)
@@ -605,9 +621,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 return V if band is None else (V, dr.zeros(mi.Float, queries.count))
             V, drop = series_visibility(smap, fb, queries, cover, opt, clamp,
                                         near_band(self.M))
-            near = near_step_weight(smap, cover, w, drop)
-            keep.extend([V, near])
-        return V, near
+            keep.extend([V, drop])
+        return V, drop
 
     def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
                              refs, beta_b=None, tail=None):
@@ -620,12 +635,13 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         def weighted_sum(k, rows):
             w = L * row_kernel(params, queries, rays, sigma_t, refs.beta[k])
             sub = smap if k < 2 else restrict_rows(smap, rows)
-            V_series, near = self.filtered(queries, sub, cover, w, self.clamp,
+            V_series, drop = self.filtered(queries, sub, cover, w, self.clamp,
                                            band=self.exact_fallback)
-            S = shadowed_sum(smap, cover, w, V_series)
+            lit, series = class_sums(smap, cover, w)
+            S = lit + series * V_series
             if tail is not None:
                 S += tail.correction(queries, cover, beta_b, w)
-            return S, cover.sum(w), near
+            return S, cover.sum(w), near_step_weight(series, drop)
 
         S, P, near = interpolated_sum(refs, weighted_sum)
         return dr.select(P > 0.0, S / P, 1.0), S, P, near
@@ -635,12 +651,13 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         weights ``w`` (§3.1, §3.2): (Σ_lit w + Σ_series w · V̄) / Σ w, its
         numerator S, denominator P and near-step weight; ``tail`` as
         :meth:`interpolated_average`."""
-        V_series, near = self.filtered(queries, smap, cover, w, clamp, band=self.exact_fallback)
+        V_series, drop = self.filtered(queries, smap, cover, w, clamp, band=self.exact_fallback)
         P = cover.sum(w)
-        S = shadowed_sum(smap, cover, w, V_series)
+        lit, series = class_sums(smap, cover, w)
+        S = lit + series * V_series
         if tail is not None:
             S += tail.correction(queries, cover, beta_b, w)
-        return dr.select(P > 0.0, S / P, 1.0), S, P, near
+        return dr.select(P > 0.0, S / P, 1.0), S, P, near_step_weight(series, drop)
 
     def exact_sum(self, queries, smap, cover, parts):
         """(S, S_L, P_L, near): S = Σ_n B_n(β) Σ_γ L A_n V cover, every
@@ -649,9 +666,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         S_L, P_L and near: the shadowed, unshadowed and near-step sums of
         the weights L (what :func:`~integrators.fourier_setup.series_unreliable`
         judges)."""
-        V0, near = self.filtered(queries, smap, cover, parts.L, clamp=False,
+        V0, drop = self.filtered(queries, smap, cover, parts.L, clamp=False,
                                  band=self.exact_fallback)
-        S0 = series_sum(smap, cover, parts.L, V0)              # Σ_series L V
+        lit_L, series_L = class_sums(smap, cover, parts.L)
+        S0 = series_L * V0                                      # Σ_series L V
         S = dr.zeros(mi.Float, queries.count)
         for a, b in zip(parts.A, parts.B):
             shift = row_shift(a, smap)
@@ -660,8 +678,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             lit = cover.sum(dr.select(smap.lit, parts.L * a, 0.0))
             S += b * (lit + series_sum(smap, cover, w, Vn)
                       - dr.gather(mi.Float, shift, queries.row) * S0)
-        S_L = cover.sum(dr.select(smap.lit, parts.L, 0.0)) + S0
-        return S, S_L, cover.sum(parts.L), near
+        return S, lit_L + S0, cover.sum(parts.L), near_step_weight(series_L, drop)
 
     def to_string(self):
         return (f"FourierFilterIntegrator[coefficients={self.M}, weights={self.weights}, "

@@ -311,11 +311,12 @@ def near_band(M: int) -> float:
     return NEAR_BAND / M
 
 
-def near_step_weight(smap: RectifiedShadowMap, cover: Coverage, w, drop) -> mi.Float:
+def near_step_weight(series, drop) -> mi.Float:
     """Σ w of the series texels in front of each query's depth whose depth
-    lies within the band around the query's (about): their weight sum times
-    the ``drop`` of the filtered average across the band."""
-    return cover.sum(dr.select(smap.series, w, 0.0)) * dr.maximum(drop, 0.0)
+    lies within the band around the query's (about): their weight sum
+    ``series`` (:func:`class_sums`) times the ``drop`` of the filtered
+    average across the band."""
+    return series * dr.maximum(drop, 0.0)
 
 
 def series_unreliable(near, S, P) -> mi.Bool:
@@ -334,6 +335,14 @@ def series_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Flo
     """Σ over the series texels of w_g V(g, β_q) clip(D − g, 0, 1): their
     weight sum times the filtered average ``V_series``."""
     return cover.sum(dr.select(smap.series, w, 0.0)) * V_series
+
+
+def class_sums(smap: RectifiedShadowMap, cover: Coverage, w):
+    """(Σ_lit, Σ_series) of w_g clip(D − g, 0, 1) per query: the covered
+    weight of the lit texels and of the series texels (the shadowed sum
+    is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`)."""
+    return (cover.sum(dr.select(smap.lit, w, 0.0)),
+            cover.sum(dr.select(smap.series, w, 0.0)))
 
 
 def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:

@@ -25,8 +25,9 @@ at the ray's first texel) traces one shadow ray per texel of it from the
 middle of the texel's covered part on the query's own camera ray
 (:func:`~integrators.light_transport.visible_exact`), as a ray marcher
 would.  A longer run is a shadow or a lit stretch of the slice itself and
-is kept.  :func:`~integrators.fourier_exact.exact_average` takes the traced
-run instead of the map's visibility.  The epipolar tree's counterpart is
+is kept.  The direct sum (:func:`~integrators.fourier_exact.exact_sums`) and
+the filter's sums take the traced run instead of the map's visibility
+(:meth:`TailVisibility.correction`, :meth:`TailVisibility.delta`).  The epipolar tree's counterpart is
 :func:`~integrators.epipolar_setup.last_interval_visibility` (one light-ray
 interval of four sub-rays; the filter's texels are that interval's
 quarters, hence a run of several).
@@ -79,39 +80,43 @@ class TailVisibility:
         the traced run changes in a weighted sum over the query's texels
         that counted the map's visibility there (``w`` (n·d) per texel,
         ``c_g`` the covered part).  0 where nothing was traced."""
-        out = dr.zeros(mi.Float, queries.count)
+        return self.delta(queries.row, cover.texel, cover.frac, queries.beta, beta_b, cover.d,
+                          lambda t, q: dr.gather(mi.Float, w, t))
+
+    def delta(self, row, texel, frac, beta, beta_b, d: int, weight) -> mi.Float:
+        """:meth:`correction` for queries given by their arrays (row, last
+        covered texel ``texel`` (flat), its covered fraction, β; this
+        object's ``first``/``base`` are theirs, e.g. a :meth:`subset`) and
+        weights ``weight(t, q)`` of flat texels ``t`` for queries ``q``
+        (indices into those arrays)."""
+        out = dr.zeros(mi.Float, dr.width(beta))
         if not self.traced:
             return out
-        q = self.idx
-        d = cover.d
-        row0 = dr.gather(mi.UInt32, queries.row, q) * d
-        texel = dr.gather(mi.UInt32, cover.texel, q)
-        frac = dr.gather(mi.Float, cover.frac, q)
-        beta = dr.gather(mi.Float, queries.beta, q)
+        q = dr.compress(self.runs())
+        if not dr.width(q):
+            return out
+        row0 = dr.gather(mi.UInt32, row, q) * d
+        last = dr.gather(mi.UInt32, texel, q)
+        f = dr.gather(mi.Float, frac, q)
+        b = dr.gather(mi.Float, beta, q)
         first = dr.gather(mi.UInt32, self.first, q)
         base = dr.gather(mi.UInt32, self.base, q)
-        delta_sum = dr.zeros(mi.Float, self.traced)
+        total = dr.zeros(mi.Float, dr.width(q))
         for i in range(self.slots):
             t = row0 + first + i
-            on = t <= texel
-            c = dr.select(t == texel, frac, 1.0)
-            lit = beta <= dr.gather(mi.Float, beta_b, t, on)
+            on = t <= last
+            t = dr.select(on, t, last)
+            c = dr.select(t == last, f, 1.0)
+            lit = b <= dr.gather(mi.Float, beta_b, t, on)
             traced = dr.gather(mi.Float, self.V, base + i, on)
             delta = traced - dr.select(lit, 1.0, 0.0)
-            delta_sum += dr.select(on, dr.gather(mi.Float, w, t, on) * c * delta, 0.0)
-        dr.scatter(out, delta_sum, q)
+            total += dr.select(on, weight(t, q) * c * delta, 0.0)
+        dr.scatter(out, total, q)
         return out
 
     def runs(self) -> mi.Bool:
         """(Q,) the queries with a traced run."""
         return self.first != NO_RUN
-
-    def visibility(self, g, lit):
-        """The map's ``lit`` (per lane, texel ``g`` row-local) with the
-        traced runs' texels replaced by their traced visibility."""
-        inside = (self.first != NO_RUN) & (g >= self.first)
-        k = dr.select(inside, self.base + g - self.first, 0)
-        return dr.select(inside, dr.gather(mi.Float, self.V, k, inside) > 0.5, lit)
 
 
 def tail_runs(queries, beta_b, cover, longest: int = TAIL_TEXELS):
