@@ -1026,26 +1026,34 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
         owner, piece = dr.gather(mi.UInt32, owner, keep), dr.gather(mi.UInt32, piece, keep)
         q = dr.gather(mi.UInt32, idx, owner)
         row = dr.gather(mi.UInt32, queries.row, q)
-        sample = dr.gather(mi.UInt32, queries.sample, q)
-        t_near = dr.gather(mi.Float, queries.t_near, q)
-        t_end = t_near + dr.gather(mi.Float, cap.d, sample)
         n_q = mi.Float(dr.gather(mi.UInt32, count, owner))
         g = (mi.Float(dr.gather(mi.UInt32, k0, q))
              + (mi.Float(piece) + 0.5) / n_q * dr.gather(mi.Float, f_t, owner))
         gamma = rays.start(row) + g * dr.gather(mi.Float, rays.delta_gamma, row)
-        t, _ = ray_meeting_t(queries.frame, dr.gather(mi.Float, queries.beta, q), gamma)
-        eps = LAST_INTERVAL_EPS * params.scene_extent
-        t = dr.clip(t, t_near, dr.maximum(t_end - eps, t_near))
-        x = (dr.gather(mi.Point3f, cap.o, sample)
-             + dr.gather(mi.Vector3f, cap.omega, sample) * (t - t_near))
-        wo, dist, _ = sample_light(params, x)
-        _, t_in, t_out = segment_box(params, x, wo, dist)
-        lit = visible_exact(params, x, wo, dist, t_in, t_out)
+        lit = own_ray_visibility(params, cap, queries, q, gamma, LAST_INTERVAL_EPS)
         V_t = dr.zeros(mi.Float, dr.width(idx))
         dr.scatter_reduce(dr.ReduceOp.Add, V_t, dr.select(lit, 1.0 / n_q, 0.0), owner)
         dr.scatter(V, V_t, idx)
     dr.eval(V)
     return LastInterval(k0, f, V_leaf, V, idx)
+
+
+def own_ray_visibility(params, cap: CameraCapture, queries: EpipolarQueries, q: mi.UInt32,
+                       gamma, eps: float, active=True) -> mi.Bool:
+    """Ray-traced V at the point of query ``q``'s own camera ray (its own α,
+    not its slice's) where its β meets light-ray angle ``gamma``, kept at
+    least ``eps`` × scene extent before the ray's end
+    (:func:`~integrators.light_transport.visible_exact`); per lane."""
+    sample = dr.gather(mi.UInt32, queries.sample, q)
+    t, _ = ray_meeting_t(queries.frame, dr.gather(mi.Float, queries.beta, q), gamma)
+    t_near = dr.gather(mi.Float, queries.t_near, q)
+    t_end = t_near + dr.gather(mi.Float, cap.d, sample)
+    t = dr.clip(t, t_near, dr.maximum(t_end - eps * params.scene_extent, t_near))
+    x = (dr.gather(mi.Point3f, cap.o, sample)
+         + dr.gather(mi.Vector3f, cap.omega, sample) * (t - t_near))
+    wo, dist, _ = sample_light(params, x)
+    _, t_in, t_out = segment_box(params, x, wo, dist)
+    return visible_exact(params, x, wo, dist, t_in, t_out, active)
 
 
 def factor_arrays(x, with_n: bool):

@@ -42,10 +42,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify.coords import ray_meeting_t
-
-from .epipolar_setup import EqualLightRays
-from .light_transport import sample_light, segment_box, visible_exact
+from .epipolar_setup import EqualLightRays, own_ray_visibility
 
 #: longest run of texels behind the last visibility change that is traced
 TAIL_TEXELS = 8
@@ -176,21 +173,11 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
     g = dr.gather(mi.UInt32, first, q) + lane % longest
     used = g <= dr.gather(mi.UInt32, k0, q)
     row = dr.gather(mi.UInt32, queries.row, q)
-    sample = dr.gather(mi.UInt32, queries.sample, q)
     covered = dr.select(g == dr.gather(mi.UInt32, k0, q), dr.gather(mi.Float, cover.frac, q),
                         1.0)
     gamma = rays.start(row) + (mi.Float(g) + 0.5 * covered) * \
         dr.gather(mi.Float, rays.delta_gamma, row)
-    t, _ = ray_meeting_t(queries.frame, dr.gather(mi.Float, queries.beta, q), gamma)
-    t_near = dr.gather(mi.Float, queries.t_near, q)
-    t_end = t_near + dr.gather(mi.Float, cap.d, sample)
-    eps = TAIL_EPS * params.scene_extent
-    t = dr.clip(t, t_near, dr.maximum(t_end - eps, t_near))
-    x = (dr.gather(mi.Point3f, cap.o, sample)
-         + dr.gather(mi.Vector3f, cap.omega, sample) * (t - t_near))
-    wo, dist, _ = sample_light(params, x)
-    _, t_in, t_out = segment_box(params, x, wo, dist)
-    lit = visible_exact(params, x, wo, dist, t_in, t_out, active=used)
+    lit = own_ray_visibility(params, cap, queries, q, gamma, TAIL_EPS, active=used)
     V = dr.select(used & lit, 1.0, 0.0)
     dr.eval(V)
     return TailVisibility(first, slot_of, V, traced, longest, idx)

@@ -1,7 +1,6 @@
 """The end runs of fourier_filter (integrators.fourier_tail) and the
 series' near-step band (integrators.fourier_basis) against NumPy oracles."""
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
