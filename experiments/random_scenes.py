@@ -51,6 +51,13 @@ Case classes (:data:`KINDS`), the failure classes of issue 13 made explicit:
 ``enclosed``
     a point light inside a closed occluder box: the reference is black,
     which measures leaks.
+``shafts``
+    (only when forced: not in :data:`KIND_CYCLE`, so the cycle's seeds are
+    unchanged) scenes where an error budget matters: σt·B in [0.3, 30],
+    3-8 occluders inside the view frustum between the light and the eye,
+    and a light that casts their shadows across the screen (a directional
+    light 20-160° off the view axis, or a point/spot light inside the
+    frustum); the held-out set of ``experiments.error_budget``.
 
 Nothing here runs an integrator; it needs Mitsuba only to place a light on
 a pixel's ray (``light_on_pixel``, through the sensor's own ``sample_ray``).
@@ -65,7 +72,7 @@ import numpy as np
 
 #: case classes (module doc)
 KINDS = ("random", "sun_axis", "light_at_eye", "light_on_pixel", "light_near_face",
-         "narrow_spot", "grazing", "thick", "enclosed")
+         "narrow_spot", "grazing", "thick", "enclosed", "shafts")
 #: the order :func:`kind_of_seed` cycles through: ``random`` twice as often
 KIND_CYCLE = ("random", "sun_axis", "light_at_eye", "random", "light_on_pixel",
               "light_near_face", "random", "narrow_spot", "grazing", "thick", "enclosed")
@@ -439,10 +446,66 @@ def _enclosed(spec, rng, eye, forward, up):
                        "reflectance": 0.5}]
 
 
+def _in_frustum(rng, eye, forward, up, fov_deg: float, dist: float, margin: float = 0.8):
+    """A point at distance ``dist`` from the eye along a ray inside
+    ``margin`` of the (square) field of view."""
+    r, u, f = _basis(forward, up)
+    t = math.tan(math.radians(fov_deg) / 2) * margin
+    x, y = rng.uniform(-t, t, 2)
+    return eye + dist * _unit(f + x * r + y * u)
+
+
+def _shafts(spec, rng, eye, forward, up):
+    """σt·B in [0.3, 30], 3-8 occluders in the frustum (for a point or spot
+    light: between it and a point in view), shadows on screen."""
+    B = spec.box_half
+    spec.sigma_t = float(10 ** rng.uniform(math.log10(0.3), math.log10(30.0))) / B
+    spec.fov = float(rng.uniform(35, 80))
+    light_kind = rng.choice(["directional", "point", "spot"])
+    pos = None
+    if light_kind == "directional":
+        toward = _rotate_towards(forward, math.radians(rng.uniform(20, 160)), rng)
+        spec.light = {"type": "directional", "direction": (-toward).tolist(),
+                      "irradiance": float(10 ** rng.uniform(-0.5, 0.5))}
+    else:
+        pos = np.clip(_in_frustum(rng, eye, forward, up, spec.fov,
+                                  float(rng.uniform(0.4, 1.0)) * B, 0.6), -0.95 * B, 0.95 * B)
+        intensity = float(10 ** rng.uniform(0, 2)) * B * B
+        if light_kind == "point":
+            spec.light = _point(pos, intensity)
+        else:
+            aim = _in_frustum(rng, eye, forward, up, spec.fov, float(rng.uniform(0.5, 1.5)) * B,
+                              0.5)
+            spec.light = _spot(rng, pos, aim, float(rng.uniform(30, 80)))
+            spec.light["intensity"] = intensity
+    n = int(rng.integers(3, 9))
+    occ, tries = [], 0
+    while len(occ) < n and tries < 200:
+        tries += 1
+        p = _in_frustum(rng, eye, forward, up, spec.fov, float(rng.uniform(0.2, 1.2)) * B)
+        if pos is not None:
+            p = pos + rng.uniform(0.2, 0.7) * (p - pos)
+        c = np.clip(p, -0.95 * B, 0.95 * B)
+        size = float(np.linalg.norm(c - eye) * 10 ** rng.uniform(-1.2, -0.6))
+        if min(np.linalg.norm(c - np.asarray(q)) for q in [eye] + ([pos] if pos is not None
+                                                                  else [])) < 2.0 * size:
+            continue
+        refl = float(rng.uniform(0.1, 0.9))
+        if rng.random() < 0.5:
+            occ.append({"shape": "sphere", "center": c.tolist(), "radius": size,
+                        "reflectance": refl})
+        else:
+            occ.append({"shape": "box", "center": c.tolist(),
+                        "half_size": (size * rng.uniform(0.2, 1.0, 3)).tolist(),
+                        "axis": _random_unit(rng).tolist(),
+                        "angle": float(rng.uniform(0, 180)), "reflectance": refl})
+    spec.occluders = occ
+
+
 _KIND_BUILDERS = {"random": _random_case, "sun_axis": _sun_axis, "light_at_eye": _light_at_eye,
                   "light_on_pixel": _light_on_pixel, "light_near_face": _light_near_face,
                   "narrow_spot": _narrow_spot, "grazing": _grazing, "thick": _thick,
-                  "enclosed": _enclosed}
+                  "enclosed": _enclosed, "shafts": _shafts}
 
 
 def scene_set(n: int, first_seed: int = 0) -> list[SceneSpec]:

@@ -34,8 +34,11 @@ to meet ``SAFETY * error_budget`` (the most accurate one when none is).
   renders (s₀, ρ₀) and (s₀, 4ρ₀), which separates A and B; time ~
   α + β/s + γ·ρ/s (fitted).
 * ``fourier_filter`` (Klehm 2014 §3 truncated Fourier series): relMSE =
-  F + C·M^k in the coefficients M (F: what the series cannot fix, e.g. the
-  rectified map's texels); the probe renders M = 16 and 32.
+  F + C·M^k in the coefficients M (F: what the series cannot fix, mostly
+  the ``reference_ray`` weights' approximation); the probe renders M = 16
+  and 32 with the default weights.  Where F alone misses the target the
+  rule switches to ``weights="exact"`` (which removes most of F) and picks
+  M from the series term C·M^k alone.
 
 The chosen settings, the probe's errors and its time go into the render's
 ``RenderResult.stats`` (``auto_settings``, ``auto_probe``,
@@ -52,10 +55,12 @@ from dataclasses import replace
 import numpy as np
 
 QUALITIES = ("explicit", "auto")
-#: pixel centres the probe measures its errors on (a strided subset)
-PROBE_PIXELS = 1200
+#: pixel centres the probe measures its errors on (a strided subset; 300
+#: and a 512-step reference estimate the relMSE within 2x in 90 % of the
+#: cases, ``experiments.error_budget``'s probe table)
+PROBE_PIXELS = 300
 #: steps of the exact marcher the probe's errors are measured against
-REFERENCE_STEPS = 1024
+REFERENCE_STEPS = 512
 #: the budget's share the rule aims at (the probe's estimate is noisy)
 SAFETY = 0.5
 #: steps of the marcher's probe
@@ -136,9 +141,11 @@ def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float
 class Probe:
     """The probe of one scene (module doc): renders settings of a method at
     one sample per pixel centre and measures them on :func:`probe_pixels`
-    against the exact marcher on those pixels."""
+    against the exact marcher on those pixels (``pixels``, ``steps``:
+    :data:`PROBE_PIXELS`, :data:`REFERENCE_STEPS` unless given)."""
 
-    def __init__(self, scene, sensor, method: str, base: dict):
+    def __init__(self, scene, sensor, method: str, base: dict, pixels: int | None = None,
+                 steps: int | None = None):
         import mitsuba as mi
 
         self.scene, self.sensor, self.method = scene, sensor, method
@@ -147,11 +154,11 @@ class Probe:
                      if k not in ("samples_per_pixel", "jitter_pixels", "output")}
         s = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
         self.width, self.height = (int(v) for v in s.film().crop_size())
-        self.pixels = probe_pixels(self.width, self.height)
+        self.pixels = probe_pixels(self.width, self.height, pixels or PROBE_PIXELS)
         self.mask = np.zeros(self.width * self.height, bool)
         self.mask[self.pixels] = True
         ref = mi.load_dict({"type": "raymarch", "visibility": "exact",
-                            "steps": REFERENCE_STEPS})
+                            "steps": steps or REFERENCE_STEPS})
         self.reference = self.values(ref, partial=True)
         self.errors = []
 
@@ -185,13 +192,25 @@ def target_of(budget: float) -> float:
     return SAFETY * budget
 
 
+def probe_settings(method: str, diagonal: float) -> list[dict]:
+    """The two settings the probe of ``method`` renders (module doc), for an
+    image of ``diagonal`` pixels."""
+    if method == "raymarch":
+        return [{"visibility": "exact", "steps": n} for n in MARCH_PROBE]
+    if method == "epipolar_tree":
+        s0, r0, r1 = TREE_PROBE
+        return [{"slice_spacing": s0, "light_rays": light_rays_of(r, diagonal)}
+                for r in (r0, r1)]
+    if method == "fourier_filter":
+        return [{"coefficients": m} for m in FILTER_PROBE]
+    raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
+
+
 def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     """Steps of the exact marcher: relMSE = C n^k through the probe's two
     step counts (k clamped; the fitted k where the probe sees no error)."""
     fit = fit or FIT["raymarch"]
-    n1, n2 = MARCH_PROBE
-    e1 = probe.error({"visibility": "exact", "steps": n1}, partial=True)
-    e2 = probe.error({"visibility": "exact", "steps": n2}, partial=True)
+    e1, e2 = (probe.error(p, partial=True) for p in probe_settings("raymarch", probe.diagonal))
     return {"visibility": "exact", "steps": march_steps(e1, e2, budget, fit)}
 
 
@@ -245,36 +264,42 @@ def light_rays_of(density: float, diagonal: float) -> int:
 
 def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     """Slice spacing and light rays of the tree (module doc)."""
-    s0, r0, r1 = TREE_PROBE
-    e1 = probe.error({"slice_spacing": s0, "light_rays": light_rays_of(r0, probe.diagonal)})
-    e2 = probe.error({"slice_spacing": s0, "light_rays": light_rays_of(r1, probe.diagonal)})
+    e1, e2 = (probe.error(p) for p in probe_settings("epipolar_tree", probe.diagonal))
     s, r = tree_choice(e1, e2, budget, fit)
     return {"slice_spacing": s, "light_rays": light_rays_of(r, probe.diagonal)}
 
 
-def filter_coefficients(e1: float, e2: float, budget: float, fit=None) -> int:
-    """Coefficients M: relMSE = F + C M^k through the probe's errors at
-    :data:`FILTER_PROBE`; the smallest candidate meeting the target, else
-    the smallest from the probe's first up whose series error is below a
-    quarter of F (the floor: more coefficients do not help)."""
+def filter_model(e1: float, e2: float, fit=None) -> tuple[float, float]:
+    """(F, C) of relMSE = F + C M^k through the probe's errors at
+    :data:`FILTER_PROBE` (module doc)."""
     fit = fit or FIT["fourier_filter"]
     m1, m2 = FILTER_PROBE
     k = fit["k"]
     C = max((e1 - e2) / (m1 ** k - m2 ** k), 0.0)
-    F = max(e2 - C * m2 ** k, 0.0)
+    return max(e2 - C * m2 ** k, 0.0), C
+
+
+def filter_settings(e1: float, e2: float, budget: float, fit=None) -> dict:
+    """Coefficients M (and weights) of the filter: the smallest candidate
+    with F + C M^k within the target; where the floor F alone misses it,
+    ``weights="exact"`` and the smallest M with C M^k within it (the most
+    coefficients when none is)."""
+    fit = fit or FIT["fourier_filter"]
+    k = fit["k"]
+    F, C = filter_model(e1, e2, fit)
     for M in FILTER_COEFFICIENTS:
         if F + C * M ** k <= target_of(budget):
-            return M
+            return {"coefficients": M}
     for M in FILTER_COEFFICIENTS:
-        if M >= m1 and C * M ** k <= 0.25 * F:
-            return M
-    return FILTER_COEFFICIENTS[-1]
+        if C * M ** k <= target_of(budget):
+            return {"coefficients": M, "weights": "exact"}
+    return {"coefficients": FILTER_COEFFICIENTS[-1], "weights": "exact"}
 
 
 def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
-    """Coefficients of the filter (module doc)."""
-    e1, e2 = (probe.error({"coefficients": m}) for m in FILTER_PROBE)
-    return {"coefficients": filter_coefficients(e1, e2, budget, fit)}
+    """Coefficients and weights of the filter (module doc)."""
+    e1, e2 = (probe.error(p) for p in probe_settings("fourier_filter", probe.diagonal))
+    return filter_settings(e1, e2, budget, fit)
 
 
 #: method -> the knobs its rule chooses and the rule (probe, budget) -> settings
@@ -282,7 +307,7 @@ RULES = {
     "raymarch": {"knobs": ("steps", "visibility"), "choose": choose_raymarch},
     "epipolar_tree": {"knobs": ("slice_spacing", "light_rays", "slices"),
                       "choose": choose_tree},
-    "fourier_filter": {"knobs": ("coefficients",), "choose": choose_filter},
+    "fourier_filter": {"knobs": ("coefficients", "weights"), "choose": choose_filter},
 }
 
 
