@@ -49,7 +49,8 @@ SWEEPS = {"raymarch": [{"visibility": "exact", "steps": n}
           "epipolar_tree": [{"slice_spacing": s, "density": r}
                             for s, r in itertools.product((0.5, 1.4, 4.0), (0.5, 1.4, 4.0))],
           "fourier_filter": [{"coefficients": m} for m in (8, 16, 32, 64, 128, 256)]
-          + [{"coefficients": m, "weights": "exact"} for m in (16, 64, 256)]}
+          + [{"coefficients": m, "weights": "exact"} for m in (16, 64, 256)],
+          "minmax_epipolar": [{"initial_step": s} for s in (1, 2, 4, 8, 16, 32)]}
 
 
 # --------------------------------------------------------------------------

@@ -40,6 +40,13 @@ to meet ``SAFETY * error_budget`` (the most accurate one when none is).
   rule switches to ``weights="exact"`` (which removes most of F) and picks
   M from the series term C·M^k alone.
 
+* ``minmax_epipolar`` (Yusov 2013 §3 initial integration samples): relMSE
+  = C·s^k in the initial step s (samples between integration samples);
+  the probe renders s = 16 and 4, which give the scene's C and k (k
+  clamped to ``FIT["minmax_epipolar"]["k_range"]``, set a priori: the
+  suite's frontier runs have no minmax sweep to fit it on); the largest
+  candidate step predicted to meet the target.
+
 The chosen settings, the probe's errors and its time go into the render's
 ``RenderResult.stats`` (``auto_settings``, ``auto_probe``,
 ``auto_probe_s``) and ``timings["probe"]``; the render itself is that of
@@ -73,6 +80,9 @@ TREE_PROBE = (2.0, 0.5, 2.0)
 #: candidate coefficients of the filter, and its probe
 FILTER_COEFFICIENTS = (8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 FILTER_PROBE = (16, 32)
+#: candidate initial steps of minmax_epipolar, and its probe
+MINMAX_STEPS = (1, 2, 4, 8, 16, 32)
+MINMAX_PROBE = (16, 4)
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
 #: centres) by ``python -m experiments.error_budget --fit-only``
@@ -80,6 +90,7 @@ FIT = {
     "raymarch": {"k": -1.99, "k_range": (-4.0, -1.0)},
     "epipolar_tree": {"a": 1.9, "b": 1.1, "time": (0.543, 0.354, 0.102)},
     "fourier_filter": {"k": -1.62},
+    "minmax_epipolar": {"k": 1.0, "k_range": (0.5, 3.0)},
 }
 
 
@@ -203,6 +214,8 @@ def probe_settings(method: str, diagonal: float) -> list[dict]:
                 for r in (r0, r1)]
     if method == "fourier_filter":
         return [{"coefficients": m} for m in FILTER_PROBE]
+    if method == "minmax_epipolar":
+        return [{"initial_step": s} for s in MINMAX_PROBE]
     raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
 
 
@@ -302,12 +315,34 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     return filter_settings(e1, e2, budget, fit)
 
 
+def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
+    """Initial step s with C s^k within the target, C and k through the
+    errors ``e1``, ``e2`` at :data:`MINMAX_PROBE` (k clamped; the largest
+    candidate predicted to meet it, else 1)."""
+    fit = fit or FIT["minmax_epipolar"]
+    s1, s2 = MINMAX_PROBE
+    if not (e2 > 0 and math.isfinite(e2)):
+        return s2 if e2 == 0 else 1
+    k = fit["k"]
+    if e1 > 0 and math.isfinite(e1):
+        k = min(max(math.log(e1 / e2) / math.log(s1 / s2), fit["k_range"][0]), fit["k_range"][1])
+    ok = [s for s in MINMAX_STEPS if e2 * (s / s2) ** k <= target_of(budget)]
+    return max(ok) if ok else MINMAX_STEPS[0]
+
+
+def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
+    """Initial step of the min/max method (module doc)."""
+    e1, e2 = (probe.error(p) for p in probe_settings("minmax_epipolar", probe.diagonal))
+    return {"initial_step": minmax_step(e1, e2, budget, fit)}
+
+
 #: method -> the knobs its rule chooses and the rule (probe, budget) -> settings
 RULES = {
     "raymarch": {"knobs": ("steps", "visibility"), "choose": choose_raymarch},
     "epipolar_tree": {"knobs": ("slice_spacing", "light_rays", "slices"),
                       "choose": choose_tree},
     "fourier_filter": {"knobs": ("coefficients", "weights"), "choose": choose_filter},
+    "minmax_epipolar": {"knobs": ("initial_step",), "choose": choose_minmax},
 }
 
 

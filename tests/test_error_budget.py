@@ -11,7 +11,7 @@ import pytest
 
 from integrators import quality_auto as qa
 
-METHODS = ("raymarch", "epipolar_tree", "fourier_filter")
+METHODS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -29,6 +29,7 @@ def test_quality_properties_are_validated(method, props, match):
 
 
 @pytest.mark.parametrize("method, knob", [("raymarch", {"steps": 64}),
+                                          ("minmax_epipolar", {"initial_step": 4}),
                                           ("epipolar_tree", {"slice_spacing": 2.0}),
                                           ("fourier_filter", {"coefficients": 16})])
 def test_auto_refuses_the_knobs_it_chooses(method, knob):
@@ -36,9 +37,25 @@ def test_auto_refuses_the_knobs_it_chooses(method, knob):
         mi.load_dict({"type": method, "quality": "auto", "error_budget": 1e-4, **knob})
 
 
-def test_auto_needs_a_rule():
+def test_auto_needs_a_rule(monkeypatch):
+    monkeypatch.delitem(qa.RULES, "minmax_epipolar")
     with pytest.raises(Exception, match="no rule for 'minmax_epipolar'"):
         mi.load_dict({"type": "minmax_epipolar", "quality": "auto", "error_budget": 1e-4})
+
+
+@pytest.mark.parametrize("e1, e2", [(7.8e-4, 2.3e-4), (5.7e-5, 4.6e-6), (1e-4, 1e-4), (0.0, 0.0)])
+def test_minmax_step_shrinks_with_the_budget(e1, e2):
+    steps = [qa.minmax_step(e1, e2, b) for b in BUDGETS]
+    assert steps == sorted(steps, reverse=True)
+
+
+def test_minmax_step_meets_a_power_law():
+    """Errors C s^1.5 at the probe's steps: the chosen s is the largest
+    candidate with C s^1.5 <= SAFETY * budget."""
+    C = 1e-6
+    s1, s2 = qa.MINMAX_PROBE
+    s = qa.minmax_step(C * s1 ** 1.5, C * s2 ** 1.5, 2e-5)
+    assert C * s ** 1.5 <= qa.SAFETY * 2e-5 < C * (2 * s) ** 1.5
 
 
 BUDGETS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 1e-6)
@@ -109,7 +126,7 @@ def test_probe_pixels_stride_the_image():
     assert len(qa.probe_pixels(3, 2, 1200)) == 6
 
 
-@pytest.mark.parametrize("method", ["raymarch", "epipolar_tree", "fourier_filter"])
+@pytest.mark.parametrize("method", METHODS)
 def test_auto_render_equals_the_explicit_render_of_its_choice(make_scene, method):
     scene = make_scene()
     auto = mi.load_dict({"type": method, "quality": "auto", "error_budget": 1e-4})
