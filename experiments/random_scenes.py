@@ -230,16 +230,21 @@ def _occluders(rng, B: float, n: int, eye, keep_clear: list) -> list[dict]:
         clear = [eye] + list(keep_clear)
         if min(np.linalg.norm(centre - np.asarray(p)) for p in clear) < 2.0 * size:
             continue
-        refl = float(rng.uniform(0.1, 0.9))
-        if rng.random() < 0.5:
-            out.append({"shape": "sphere", "center": centre.tolist(), "radius": size,
-                        "reflectance": refl})
-        else:
-            half = (size * rng.uniform(0.2, 1.0, 3)).tolist()
-            out.append({"shape": "box", "center": centre.tolist(), "half_size": half,
-                        "axis": _random_unit(rng).tolist(),
-                        "angle": float(rng.uniform(0, 180)), "reflectance": refl})
+        out.append(_occluder_at(rng, centre, size))
     return out
+
+
+def _occluder_at(rng, centre, size: float) -> dict:
+    """A sphere of radius ``size`` or a randomly turned box of half-sizes
+    up to ``size`` at ``centre``, random reflectance."""
+    refl = float(rng.uniform(0.1, 0.9))
+    if rng.random() < 0.5:
+        return {"shape": "sphere", "center": centre.tolist(), "radius": size,
+                "reflectance": refl}
+    half = (size * rng.uniform(0.2, 1.0, 3)).tolist()
+    return {"shape": "box", "center": centre.tolist(), "half_size": half,
+            "axis": _random_unit(rng).tolist(), "angle": float(rng.uniform(0, 180)),
+            "reflectance": refl}
 
 
 def _point(position, intensity) -> dict:
@@ -490,15 +495,7 @@ def _shafts(spec, rng, eye, forward, up):
         if min(np.linalg.norm(c - np.asarray(q)) for q in [eye] + ([pos] if pos is not None
                                                                   else [])) < 2.0 * size:
             continue
-        refl = float(rng.uniform(0.1, 0.9))
-        if rng.random() < 0.5:
-            occ.append({"shape": "sphere", "center": c.tolist(), "radius": size,
-                        "reflectance": refl})
-        else:
-            occ.append({"shape": "box", "center": c.tolist(),
-                        "half_size": (size * rng.uniform(0.2, 1.0, 3)).tolist(),
-                        "axis": _random_unit(rng).tolist(),
-                        "angle": float(rng.uniform(0, 180)), "reflectance": refl})
+        occ.append(_occluder_at(rng, c, size))
     spec.occluders = occ
 
 

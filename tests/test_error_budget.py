@@ -191,3 +191,16 @@ def test_fit_refuses_rows_without_sweeps():
 
     with pytest.raises(ValueError, match="frontier sweep"):
         fit_constants([])
+
+
+def test_held_out_scenes_are_shafts_the_cycle_never_draws():
+    """experiments.random_scenes 'shafts' (the held-out set): σt·B in
+    [0.3, 30], 3-8 occluders, and no seed of the stress cycle draws it (the
+    cycle's scenes are unchanged)."""
+    from experiments import random_scenes as rs
+
+    assert "shafts" not in rs.KIND_CYCLE
+    for seed in range(1000, 1012):
+        spec = rs.random_scene(seed, "shafts")
+        assert 0.3 <= spec.sigma_t * spec.box_half <= 30.0
+        assert 3 <= len(spec.occluders) <= 8
