@@ -12,7 +12,7 @@ No integrator is set: pass the one to test to ``mi.render``.
 API
 ---
 ``random_scene(seed, kind=None) -> SceneSpec``
-    The scene of ``seed``; ``kind`` (one of :data:`KINDS`) forces a case
+    The scene of ``seed``; ``kind`` (:data:`KINDS`, :data:`FORCED_KINDS`) forces a case
     class, else the seed picks it (:func:`kind_of_seed`).
 ``scene_set(n, first_seed=0) -> list[SceneSpec]``
     ``n`` consecutive seeds; the case classes recur every
@@ -52,7 +52,7 @@ Case classes (:data:`KINDS`), the failure classes of issue 13 made explicit:
     a point light inside a closed occluder box: the reference is black,
     which measures leaks.
 ``shafts``
-    (only when forced: not in :data:`KIND_CYCLE`, so the cycle's seeds are
+    (:data:`FORCED_KINDS`: only when forced, so the cycle's seeds are
     unchanged) scenes where an error budget matters: σt·B in [0.3, 30],
     3-8 occluders inside the view frustum between the light and the eye,
     and a light that casts their shadows across the screen (a directional
@@ -72,7 +72,9 @@ import numpy as np
 
 #: case classes (module doc)
 KINDS = ("random", "sun_axis", "light_at_eye", "light_on_pixel", "light_near_face",
-         "narrow_spot", "grazing", "thick", "enclosed", "shafts")
+         "narrow_spot", "grazing", "thick", "enclosed")
+#: case classes drawn only when forced (``random_scene(seed, kind)``), never by the cycle
+FORCED_KINDS = ("shafts",)
 #: the order :func:`kind_of_seed` cycles through: ``random`` twice as often
 KIND_CYCLE = ("random", "sun_axis", "light_at_eye", "random", "light_on_pixel",
               "light_near_face", "random", "narrow_spot", "grazing", "thick", "enclosed")
@@ -306,9 +308,10 @@ def kind_of_seed(seed: int) -> str:
 def random_scene(seed: int, kind: str | None = None) -> SceneSpec:
     """The scene of ``seed`` (module doc); ``kind`` forces a case class."""
     kind = kind_of_seed(seed) if kind is None else kind
-    if kind not in KINDS:
-        raise ValueError(f"unknown scene kind {kind!r}: use one of {', '.join(KINDS)}")
-    rng = np.random.default_rng([13, seed, KINDS.index(kind)])
+    kinds = KINDS + FORCED_KINDS
+    if kind not in kinds:
+        raise ValueError(f"unknown scene kind {kind!r}: use one of {', '.join(kinds)}")
+    rng = np.random.default_rng([13, seed, kinds.index(kind)])
     B = float(10 ** rng.uniform(-1, 2))
     res = tuple(int(x) for x in RESOLUTIONS[rng.integers(len(RESOLUTIONS))])
     eye, forward, up = _camera(rng, B)

@@ -199,7 +199,8 @@ def test_held_out_scenes_are_shafts_the_cycle_never_draws():
     cycle's scenes are unchanged)."""
     from experiments import random_scenes as rs
 
-    assert "shafts" not in rs.KIND_CYCLE
+    assert "shafts" not in rs.KIND_CYCLE and "shafts" in rs.FORCED_KINDS
+    rs.random_scene(1000, "shafts").load()
     for seed in range(1000, 1012):
         spec = rs.random_scene(seed, "shafts")
         assert 0.3 <= spec.sigma_t * spec.box_half <= 30.0
