@@ -249,3 +249,25 @@ def test_issue13_tree_matches_the_float64_oracle(seed):
     img = render_rgb(scene, c.build("epipolar_tree", {"output": "scattering"}))
     s = st.random_stats(img, ref, 1.0)
     assert s["ref_class"] == "lit" and s["bounded"], (ORACLE_SEEDS[seed], s)
+
+
+def test_unresolved_sums_are_remarched(monkeypatch):
+    """Seed 31's bound comes from re-marching the samples whose unshadowed
+    separated sum is below 1e-2 of its magnitude (stats["unresolved"]);
+    UNRESOLVED_RATIO = 0 turns it off and leaves the separated kernel's
+    error (relMSE ~1)."""
+    from episcatter.reference import render_rgb
+    from experiments import common as c
+    from integrators import epipolar_setup as es
+
+    scene = rs.random_scene(31).load()
+    ref = render_rgb(scene, c.build("raymarch", {"visibility": "exact", "steps": 2048,
+                                                 "output": "scattering"}))
+    out = {}
+    for ratio in (1e-2, 0.0):        # the default, off
+        monkeypatch.setattr(es, "UNRESOLVED_RATIO", ratio)
+        res = c.build("epipolar_tree", {"output": "scattering"}).render_layers(scene, spp=1)
+        out[ratio] = (res.stats["unresolved"],
+                      st.random_stats(np.array(res["scattering"]), ref, 1.0))
+    assert out[0.0][0] == 0 and not out[0.0][1]["bounded"], out
+    assert out[1e-2][0] > 0 and out[1e-2][1]["bounded"], out
