@@ -106,7 +106,7 @@ from rectify.slices import Slices, alpha_to_slice, make_slices
 from .capture import CameraCapture, sample_rng, seed_offset
 from .light_transport import (slabs, color, first_blocker, phase_eval, point,
                               sample_light, segment_box, segment_weight, visible_exact)
-from .partial_sum_tree import BlockerModes, factor_layout, integrate_slices
+from .partial_sum_tree import BlockerModes, factor_layout
 from .marching import lit_spacing, march
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
@@ -1151,40 +1151,73 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
 SWEEP_RESIDUE_EPS = 16 * 2.0 ** -23
 
 
-def _abs_tensor(x):
-    return None if x is None else mi.TensorXf(dr.abs(mi.Float(x.array)), shape=tuple(x.shape))
-
-
-def unshadowed_sums(queries: EpipolarQueries, A, B, L, D, d_count=None) -> mi.Color3f:
-    """Σ_{γ<D} L Σ_i A_i B_i per query: the sweep without blockers (its
-    closed form, :func:`~integrators.partial_sum_tree.integrate_slices`)."""
-    d = A.shape[1]
-    free = BlockerModes(dr.full(mi.TensorXf, float(queries.r), (queries.n, d, 1)),
-                        dr.zeros(mi.TensorXf, (queries.n, d, 1)))
-    return gather_queries(queries, integrate_slices(D, free, A, B, L=L,
-                                                    r_count=mi.Int32(queries.r_count),
-                                                    d_count=d_count))
+def prefix_sums(queries: EpipolarQueries, A, B, L, D, d_count=None):
+    """(U, M) per query: the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the
+    sweep without blockers) and its magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i|,
+    both as the sweep's closed form takes the last, partial light ray
+    (cumulative sums lerped at D, :mod:`~integrators.partial_sum_tree`),
+    each row's cumulative sums formed in parallel
+    (``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
+    None, (n|1, d) or (n|1, d, C); ``d_count``: light rays per row (None:
+    all d)."""
+    a, nA, d, CA, N = factor_arrays(A, True)
+    b, nB, _, CB, _ = factor_arrays(B, True)
+    C = max(CA, CB, 1 if L is None else factor_arrays(L, False)[3])
+    n, w = queries.n, d + 1
+    # lanes (s, c, i, g), g ∈ [0, d] innermost: one block of d + 1 per (row, channel, term)
+    j = dr.arange(mi.UInt32, n * C * N * w)
+    g, i, c, s = j % w, (j // w) % N, (j // (w * N)) % C, j // (w * N * C)
+    gl = dr.minimum(g, d - 1)
+    v = dr.gather(mi.Float, a, ((s * d + gl if nA > 1 else gl) * CA + c % CA) * N + i)
+    if L is not None:
+        l, nL, _, CL, _ = factor_arrays(L, False)
+        v *= dr.gather(mi.Float, l, (s * d + gl if nL > 1 else gl) * CL + c % CL)
+    v = dr.select(g < d, v, 0.0)
+    cum_u = dr.block_prefix_sum(v, w)               # Σ_{γ<g} A_i L
+    cum_m = dr.block_prefix_sum(dr.abs(v), w)       # Σ_{γ<g} |A_i L|
+    d_s = (dr.full(mi.UInt32, d, queries.count) if d_count is None
+           else mi.UInt32(dr.gather(mi.Int32, d_count, queries.row)))
+    Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)
+    Dq = dr.clip(dr.select(dr.isnan(Dq), 0.0, Dq), 0.0, mi.Float(d_s))
+    k0 = mi.UInt32(dr.maximum(dr.minimum(dr.floor(Dq), mi.Float(d_s) - 1.0), 0.0))
+    f = Dq - mi.Float(k0)
+    row = queries.slot if nB > 1 else queries.col
+    U, M = [], []
+    for ch in range(C):
+        u, m = mi.Float(0.0), mi.Float(0.0)
+        for k in range(N):
+            base = ((queries.row * C + ch) * N + k) * w + k0
+            bk = dr.gather(mi.Float, b, (row * CB + ch % CB) * N + k)
+            u += bk * dr.lerp(dr.gather(mi.Float, cum_u, base),
+                              dr.gather(mi.Float, cum_u, base + 1), f)
+            m += dr.abs(bk) * dr.lerp(dr.gather(mi.Float, cum_m, base),
+                                      dr.gather(mi.Float, cum_m, base + 1), f)
+        U.append(u)
+        M.append(m)
+    if C == 1:
+        U, M = U * 3, M * 3
+    return mi.Color3f(*U), mi.Color3f(*M)
 
 
 def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None) -> mi.Color3f:
-    """Σ_{γ<D} |L| Σ_i |A_i B_i| per query (:func:`unshadowed_sums` of the
-    absolute factors): a bound of every partial sum the sweep forms for it,
-    the scale of its rounding.
+    """M = Σ_{γ<D} Σ_i |A_i L| |B_i| per query (:func:`prefix_sums`): a
+    bound of every partial sum the sweep forms for it, the scale of its
+    rounding.
 
     The Fenwick tree (:mod:`~integrators.partial_sum_tree`) removes a
     shadowed leaf by subtracting w·A·L from node sums that added A·L before;
     a view ray shadowed all along is left with the rounding of those
-    cancellations, up to ~ε·Σ_{γ<D} |A L| (a prefix sum to D reads nodes
-    that hold leaves before D alone; 1e-9…1e-7 of the row's light on the
-    terrain), where the exact sum is 0.  Invisible, but HDR metrics on
-    mostly black references amplify it (FLIP 0.39 on terrain, 0.92 on
-    beam); so do the cancellations of the near-plane and last-interval
-    corrections.  :func:`assemble_queries` returns 0 for a query whose
-    result is within ``SWEEP_RESIDUE_EPS`` times the magnitude of its parts
-    -- below their own rounding error.  (Counted over the whole row, the
-    bound flushed lit queries that end early in a row whose far light rays
-    carry e^{20} more light: issue 13, seed 31.)"""
-    return unshadowed_sums(queries, _abs_tensor(A), _abs_tensor(B), _abs_tensor(L), D, d_count)
+    cancellations, up to ~ε·M (a prefix sum to D reads nodes that hold
+    leaves before D alone; 1e-9…1e-7 of the row's light on the terrain),
+    where the exact sum is 0.  Invisible, but HDR metrics on mostly black
+    references amplify it (FLIP 0.39 on terrain, 0.92 on beam); so do the
+    cancellations of the near-plane and last-interval corrections.
+    :func:`assemble_queries` returns 0 for a query whose result is within
+    ``SWEEP_RESIDUE_EPS`` times the magnitude of its parts -- below their
+    own rounding error.  (Counted over the whole row, the bound flushed
+    lit queries that end early in a row whose far light rays carry e^{20}
+    more light: issue 13, seed 31.)"""
+    return prefix_sums(queries, A, B, L, D, d_count)[1]
 
 
 #: a query whose unshadowed sum is below this fraction of its magnitude
@@ -1192,25 +1225,22 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None) -> mi.Co
 UNRESOLVED_RATIO = 1e-2
 
 
-def unresolved_samples(queries: EpipolarQueries, A, B, L, D, magnitude: mi.Color3f,
-                       d_count=None) -> mi.UInt32:
+def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -> mi.UInt32:
     """Camera samples with a query whose sum the tree cannot resolve: its
-    unshadowed separated sum (:func:`unshadowed_sums`) below
-    ``UNRESOLVED_RATIO`` of its ``magnitude`` (:func:`sweep_magnitude`) in
-    any channel.  The tree's result is then a difference of terms ≥ 100×
-    as large: their float32 rounding and the separated kernel's absolute
-    error (both ∝ the magnitude) are ≥ 1e-5…1e-3 of the query's value, and
-    all of it where L grows along the slice by e^{20…30} while the view
-    ray's kernel decays as fast (a thick medium seen away from a light
-    whose light-side path shrinks along the slice, issue 13 seed 31: 28×
-    the exact sum).  Such samples are ray-marched instead
-    (:func:`remarch_samples`)."""
+    unshadowed separated sum U below ``UNRESOLVED_RATIO`` of its magnitude
+    M (:func:`prefix_sums`) in any channel.  The tree's result is then a
+    difference of terms ≥ 100× as large: their float32 rounding and the
+    separated kernel's absolute error (both ∝ M) are ≥ 1e-5…1e-3 of the
+    query's value, and all of it where L grows along the slice by
+    e^{20…30} while the view ray's kernel decays as fast (a thick medium
+    seen away from a light whose light-side path shrinks along the slice,
+    issue 13 seed 31: 28× the exact sum).  Such samples are ray-marched
+    instead (:func:`remarch_samples`)."""
     if not queries.count:
         return dr.zeros(mi.UInt32, 0)
-    U = unshadowed_sums(queries, A, B, L, D, d_count)
     bad = mi.Bool(False)
     for c in range(3):
-        bad |= (magnitude[c] > 0.0) & (dr.abs(U[c]) < UNRESOLVED_RATIO * magnitude[c])
+        bad |= (M[c] > 0.0) & (dr.abs(U[c]) < UNRESOLVED_RATIO * M[c])
     mask = dr.zeros(mi.Bool, queries.n_samples)
     dr.scatter(mask, True, queries.sample, active=bad)
     return dr.compress(mask)
