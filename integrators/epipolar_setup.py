@@ -929,7 +929,7 @@ class QueryTerms:
     view: mi.Color3f        # Δγ / sin β · φ(σt tan(β/2) Δγ)
     near: mi.Color3f        # V · ∫ over [0, t_near] of e^{-σt (h(0) − h_ref)} e^{-σt t(1−cos β)} dt
     last: object = 0.0      # f · (V_last − V_leaf) · Σ_i B_i(β) A_i(k0) L(k0), integral units
-    magnitude: object = None  # Σ_i |B_i(β)| Σ_γ |A_i L| of the row (sweep_magnitude); None: no flush
+    magnitude: object = None  # Σ_{γ<D} Σ_i |A_i L| |B_i(β)| (sweep_magnitude); None: no flush
 
 
 def leaf_visibility(queries: EpipolarQueries, modes: BlockerModes, leaf=0) -> mi.Float:
@@ -1151,15 +1151,29 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
 SWEEP_RESIDUE_EPS = 16 * 2.0 ** -23
 
 
-def prefix_sums(queries: EpipolarQueries, A, B, L, D, d_count=None):
-    """(U, M) per query: the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the
-    sweep without blockers) and its magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i|,
-    both as the sweep's closed form takes the last, partial light ray
-    (cumulative sums lerped at D, :mod:`~integrators.partial_sum_tree`),
-    each row's cumulative sums formed in parallel
-    (``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
+def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None):
+    """(M, U) per query: the magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i| of
+    every partial sum the sweep forms for it (the scale of its rounding)
+    and the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the sweep without
+    blockers, for :func:`unresolved_samples`), both as the sweep's closed
+    form takes the last, partial light ray (cumulative sums lerped at D,
+    :mod:`~integrators.partial_sum_tree`; each row's formed in parallel by
+    ``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
     None, (n|1, d) or (n|1, d, C); ``d_count``: light rays per row (None:
-    all d)."""
+    all d).
+
+    The Fenwick tree removes a shadowed leaf by subtracting w·A·L from node
+    sums that added A·L before; a view ray shadowed all along is left with
+    the rounding of those cancellations, up to ~ε·M (a prefix sum to D
+    reads nodes that hold leaves before D alone; 1e-9…1e-7 of the row's
+    light on the terrain), where the exact sum is 0.  Invisible, but HDR
+    metrics on mostly black references amplify it (FLIP 0.39 on terrain,
+    0.92 on beam); so do the cancellations of the near-plane and
+    last-interval corrections.  :func:`assemble_queries` returns 0 for a
+    query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
+    of its parts -- below their own rounding error.  (Counted over the
+    whole row, the bound flushed lit queries that end early in a row whose
+    far light rays carry e^{20} more light: issue 13, seed 31.)"""
     a, nA, d, CA, N = factor_arrays(A, True)
     b, nB, _, CB, _ = factor_arrays(B, True)
     C = max(CA, CB, 1 if L is None else factor_arrays(L, False)[3])
@@ -1196,28 +1210,7 @@ def prefix_sums(queries: EpipolarQueries, A, B, L, D, d_count=None):
         M.append(m)
     if C == 1:
         U, M = U * 3, M * 3
-    return mi.Color3f(*U), mi.Color3f(*M)
-
-
-def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None) -> mi.Color3f:
-    """M = Σ_{γ<D} Σ_i |A_i L| |B_i| per query (:func:`prefix_sums`): a
-    bound of every partial sum the sweep forms for it, the scale of its
-    rounding.
-
-    The Fenwick tree (:mod:`~integrators.partial_sum_tree`) removes a
-    shadowed leaf by subtracting w·A·L from node sums that added A·L before;
-    a view ray shadowed all along is left with the rounding of those
-    cancellations, up to ~ε·M (a prefix sum to D reads nodes that hold
-    leaves before D alone; 1e-9…1e-7 of the row's light on the terrain),
-    where the exact sum is 0.  Invisible, but HDR metrics on mostly black
-    references amplify it (FLIP 0.39 on terrain, 0.92 on beam); so do the
-    cancellations of the near-plane and last-interval corrections.
-    :func:`assemble_queries` returns 0 for a query whose result is within
-    ``SWEEP_RESIDUE_EPS`` times the magnitude of its parts -- below their
-    own rounding error.  (Counted over the whole row, the bound flushed
-    lit queries that end early in a row whose far light rays carry e^{20}
-    more light: issue 13, seed 31.)"""
-    return prefix_sums(queries, A, B, L, D, d_count)[1]
+    return mi.Color3f(*M), mi.Color3f(*U)
 
 
 #: a query whose unshadowed sum is below this fraction of its magnitude
@@ -1228,7 +1221,7 @@ UNRESOLVED_RATIO = 1e-2
 def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -> mi.UInt32:
     """Camera samples with a query whose sum the tree cannot resolve: its
     unshadowed separated sum U below ``UNRESOLVED_RATIO`` of its magnitude
-    M (:func:`prefix_sums`) in any channel.  The tree's result is then a
+    M (:func:`sweep_magnitude`) in any channel.  The tree's result is then a
     difference of terms ≥ 100× as large: their float32 rounding and the
     separated kernel's absolute error (both ∝ M) are ≥ 1e-5…1e-3 of the
     query's value, and all of it where L grows along the slice by

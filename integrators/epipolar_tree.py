@@ -16,8 +16,8 @@ import mitsuba as mi
 from .capture import capture_shadow_map
 from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibility,
                              gather_queries, last_interval_correction,
-                             last_interval_visibility, prefix_sums, rectified_depth,
-                             remarch_samples, unresolved_samples)
+                             last_interval_visibility, rectified_depth, remarch_samples,
+                             sweep_magnitude, unresolved_samples)
 from .light_models import light_model
 from .partial_sum_tree import integrate_slices
 from .row_subset import frame_choices, take_light_rays, take_rows
@@ -253,8 +253,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms.last = (last_interval_correction(queries, A, B, L, last)
                           + model.band_correction(params, queries, rays, A, B, L, modes, last,
                                                   self.ASYMPTOTE_BAND))
-            # the unshadowed sums and their magnitude (epipolar_setup.sweep_magnitude)
-            unshadowed, terms.magnitude = prefix_sums(queries, A, B, L, D, d_count)
+            terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, D, d_count)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.extend([value, unshadowed])
         with self.stage("ring") as keep:
