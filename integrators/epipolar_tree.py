@@ -255,7 +255,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                                   self.ASYMPTOTE_BAND))
             terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, D, d_count)
             value = assemble_queries(terms, gather_queries(queries, integral))
-            keep.extend([value, unshadowed])
+            keep.extend([value, unshadowed, terms.magnitude])
         with self.stage("ring") as keep:
             # sums the separated kernel does not resolve: ray-marched
             unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
