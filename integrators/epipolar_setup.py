@@ -448,10 +448,52 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
     light's rays share one lattice of angles instead
     (:func:`~integrators.epipolar_local_light.local_light_ray_grid`)."""
     gamma_max = row_gamma_end(queries, 1e-6 * params.scene_extent)
+    auto = not d
     d = light_ray_count(params, d, float(dr.max(gamma_max)[0]))
     rays = with_box_exits(params, queries, LightRays(int(d), gamma_max, gamma_max / d))
+    if auto:
+        step = light_side_step(params, rays)
+        if step > LIGHT_SIDE_STEP and d < MAX_AUTO_LIGHT_RAYS:
+            d = min(MAX_AUTO_LIGHT_RAYS, math.ceil(d * step / LIGHT_SIDE_STEP))
+            rays = with_box_exits(params, queries, LightRays(int(d), gamma_max, gamma_max / d))
     dr.eval(rays.gamma_max, rays.delta_gamma)
     return rays
+
+
+#: the automatic light rays: largest change σt·|Δh| of the light-side
+#: optical depth from one light ray to the next where the light arrives
+#: (:func:`light_side_step`)
+LIGHT_SIDE_STEP = 0.25
+#: ... where it arrives: σt·(h − h_ref) below this on both light rays
+LIGHT_SIDE_ARRIVES = 10.0
+
+
+def light_side_step(params, rays: LightRays) -> float:
+    """max σt·|h_{g+1} − h_g| over neighbouring light rays of a row that
+    both meet the box and carry light (σt·(h − h_ref) ≤ ``LIGHT_SIDE_ARRIVES``):
+    how much L(γ) = e^{-σt (h − h_ref)} changes across one light ray.
+
+    The sweep takes one value of L per light-ray interval times the exact
+    mean of the kernel over it.  ``auto_light_rays`` spaces the light rays
+    by the mean free path along γ, but where a grazing light's rays leave
+    the box through a face nearly parallel to them, h changes by
+    cot(grazing angle) per unit γ: σt·|Δh| ≈ 0.6 per light ray made the
+    midpoint value of L, and its covariance with the kernel over the
+    interval, 2.5 % low (issue 13, seed 206; converging as 1/d²).
+    :func:`light_ray_grid` takes as many more light rays as bring this
+    below ``LIGHT_SIDE_STEP``."""
+    d = rays.d
+    if d < 2:
+        return 0.0
+    sigma_t = float(np.max(params.medium.sigma_t))
+    s, g, _ = rays.lanes()
+    nxt = s * d + dr.minimum(g + 1, d - 1)
+    h, h_n = rays.h, dr.gather(mi.Float, rays.h, nxt)
+    h_ref = dr.gather(mi.Float, rays.h_ref, s)
+    arrives = sigma_t * (dr.maximum(h, h_n) - h_ref) <= LIGHT_SIDE_ARRIVES
+    ok = (g + 1 < d) & dr.isfinite(h) & dr.isfinite(h_n) & arrives
+    step = dr.select(ok, sigma_t * dr.abs(h_n - h), 0.0)
+    return float(dr.max(step)[0])
 
 
 def with_box_exits(params, queries: EpipolarQueries, rays):
@@ -887,7 +929,7 @@ class QueryTerms:
     view: mi.Color3f        # Δγ / sin β · φ(σt tan(β/2) Δγ)
     near: mi.Color3f        # V · ∫ over [0, t_near] of e^{-σt (h(0) − h_ref)} e^{-σt t(1−cos β)} dt
     last: object = 0.0      # f · (V_last − V_leaf) · Σ_i B_i(β) A_i(k0) L(k0), integral units
-    magnitude: object = None  # Σ_i |B_i(β)| Σ_γ |A_i L| of the row (sweep_magnitude); None: no flush
+    magnitude: object = None  # Σ_{γ<D} Σ_i |A_i L| |B_i(β)| (sweep_magnitude); None: no flush
 
 
 def leaf_visibility(queries: EpipolarQueries, modes: BlockerModes, leaf=0) -> mi.Float:
@@ -1109,42 +1151,92 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
 SWEEP_RESIDUE_EPS = 16 * 2.0 ** -23
 
 
-def sweep_magnitude(queries: EpipolarQueries, A, B, L) -> mi.Color3f:
-    """Σ_i |B_i(β)| T_i per query (T_i = Σ_γ |A_i L| of its row): a bound of
-    every partial sum the sweep forms for it, the scale of its rounding.
+def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None):
+    """(M, U) per query: the magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i| of
+    every partial sum the sweep forms for it (the scale of its rounding)
+    and the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the sweep without
+    blockers, for :func:`unresolved_samples`), both as the sweep's closed
+    form takes the last, partial light ray (cumulative sums lerped at D,
+    :mod:`~integrators.partial_sum_tree`; each row's formed in parallel by
+    ``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
+    None, (n|1, d) or (n|1, d, C); ``d_count``: light rays per row (None:
+    all d).
 
-    The Fenwick tree (:mod:`~integrators.partial_sum_tree`) removes a
-    shadowed leaf by subtracting w·A·L from node sums that added A·L before;
-    a view ray shadowed all along is left with the rounding of those
-    cancellations, up to ~ε·Σ_γ |A L| of its row (1e-9…1e-7 of the row's
+    The Fenwick tree removes a shadowed leaf by subtracting w·A·L from node
+    sums that added A·L before; a view ray shadowed all along is left with
+    the rounding of those cancellations, up to ~ε·M (a prefix sum to D
+    reads nodes that hold leaves before D alone; 1e-9…1e-7 of the row's
     light on the terrain), where the exact sum is 0.  Invisible, but HDR
     metrics on mostly black references amplify it (FLIP 0.39 on terrain,
     0.92 on beam); so do the cancellations of the near-plane and
     last-interval corrections.  :func:`assemble_queries` returns 0 for a
     query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
-    of its parts -- below their own rounding error."""
+    of its parts -- below their own rounding error.  (Counted over the
+    whole row, the bound flushed lit queries that end early in a row whose
+    far light rays carry e^{20} more light: issue 13, seed 31.)"""
     a, nA, d, CA, N = factor_arrays(A, True)
     b, nB, _, CB, _ = factor_arrays(B, True)
     C = max(CA, CB, 1 if L is None else factor_arrays(L, False)[3])
-    n = queries.n
-    # T[s, c, i] = Σ_g |A_i L|, lanes (s, c, i, g) with g innermost for block_sum
-    j = dr.arange(mi.UInt32, n * C * N * d)
-    g, i, c, s = j % d, (j // d) % N, (j // (d * N)) % C, j // (d * N * C)
-    leaf = s * d + g if nA > 1 else g
-    v = dr.abs(dr.gather(mi.Float, a, (leaf * CA + c % CA) * N + i))
+    n, w = queries.n, d + 1
+    # lanes (s, c, i, g), g ∈ [0, d] innermost: one block of d + 1 per (row, channel, term)
+    j = dr.arange(mi.UInt32, n * C * N * w)
+    g, i, c, s = j % w, (j // w) % N, (j // (w * N)) % C, j // (w * N * C)
+    gl = dr.minimum(g, d - 1)
+    v = dr.gather(mi.Float, a, ((s * d + gl if nA > 1 else gl) * CA + c % CA) * N + i)
     if L is not None:
         l, nL, _, CL, _ = factor_arrays(L, False)
-        v *= dr.abs(dr.gather(mi.Float, l, (s * d + g if nL > 1 else g) * CL + c % CL))
-    T = dr.block_sum(v, d)
+        v *= dr.gather(mi.Float, l, (s * d + gl if nL > 1 else gl) * CL + c % CL)
+    v = dr.select(g < d, v, 0.0)
+    cum_u = dr.block_prefix_sum(v, w)               # Σ_{γ<g} A_i L
+    cum_m = dr.block_prefix_sum(dr.abs(v), w)       # Σ_{γ<g} |A_i L|
+    d_s = (dr.full(mi.UInt32, d, queries.count) if d_count is None
+           else mi.UInt32(dr.gather(mi.Int32, d_count, queries.row)))
+    Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)
+    Dq = dr.clip(dr.select(dr.isnan(Dq), 0.0, Dq), 0.0, mi.Float(d_s))
+    k0 = mi.UInt32(dr.maximum(dr.minimum(dr.floor(Dq), mi.Float(d_s) - 1.0), 0.0))
+    f = Dq - mi.Float(k0)
     row = queries.slot if nB > 1 else queries.col
-    bound = []
+    U, M = [], []
     for ch in range(C):
-        acc = mi.Float(0.0)
+        u, m = mi.Float(0.0), mi.Float(0.0)
         for k in range(N):
-            acc += (dr.abs(dr.gather(mi.Float, b, (row * CB + ch % CB) * N + k))
-                    * dr.gather(mi.Float, T, (queries.row * C + ch) * N + k))
-        bound.append(acc)
-    return mi.Color3f(*(bound * 3 if C == 1 else bound))
+            base = ((queries.row * C + ch) * N + k) * w + k0
+            bk = dr.gather(mi.Float, b, (row * CB + ch % CB) * N + k)
+            u += bk * dr.lerp(dr.gather(mi.Float, cum_u, base),
+                              dr.gather(mi.Float, cum_u, base + 1), f)
+            m += dr.abs(bk) * dr.lerp(dr.gather(mi.Float, cum_m, base),
+                                      dr.gather(mi.Float, cum_m, base + 1), f)
+        U.append(u)
+        M.append(m)
+    if C == 1:
+        U, M = U * 3, M * 3
+    return mi.Color3f(*M), mi.Color3f(*U)
+
+
+#: a query whose unshadowed sum is below this fraction of its magnitude
+#: is not resolved by the separated kernel (:func:`unresolved_samples`)
+UNRESOLVED_RATIO = 1e-2
+
+
+def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -> mi.UInt32:
+    """Camera samples with a query whose sum the tree cannot resolve: its
+    unshadowed separated sum U below ``UNRESOLVED_RATIO`` of its magnitude
+    M (:func:`sweep_magnitude`) in any channel.  The tree's result is then a
+    difference of terms ≥ 100× as large: their float32 rounding and the
+    separated kernel's absolute error (both ∝ M) are ≥ 1e-5…1e-3 of the
+    query's value, and all of it where L grows along the slice by
+    e^{20…30} while the view ray's kernel decays as fast (a thick medium
+    seen away from a light whose light-side path shrinks along the slice,
+    issue 13 seed 31: 28× the exact sum).  Such samples are ray-marched
+    instead (:func:`remarch_samples`)."""
+    if not queries.count:
+        return dr.zeros(mi.UInt32, 0)
+    bad = mi.Bool(False)
+    for c in range(3):
+        bad |= (M[c] > 0.0) & (dr.abs(U[c]) < UNRESOLVED_RATIO * M[c])
+    mask = dr.zeros(mi.Bool, queries.n_samples)
+    dr.scatter(mask, True, queries.sample, active=bad)
+    return dr.compress(mask)
 
 
 def cell_average(x):

@@ -16,7 +16,8 @@ import mitsuba as mi
 from .capture import capture_shadow_map
 from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibility,
                              gather_queries, last_interval_correction,
-                             last_interval_visibility, rectified_depth, sweep_magnitude)
+                             last_interval_visibility, rectified_depth, remarch_samples,
+                             sweep_magnitude, unresolved_samples)
 from .light_models import light_model
 from .partial_sum_tree import integrate_slices
 from .row_subset import frame_choices, take_light_rays, take_rows
@@ -83,7 +84,11 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
        within a pixel's angle of the light with 8× ``ring_steps``: the 1/r²
        peak); so are the samples whose two slices disagree
        (``remarch_disagreement``: a shaft edge or a narrow beam running
-       along the slices).
+       along the slices); and so are the samples whose sums the separated
+       kernel does not resolve (:func:`~integrators.epipolar_setup.unresolved_samples`:
+       the unshadowed sum below 1e-2 of its terms' magnitude, e.g. a thick
+       medium seen away from a light whose light-side path shrinks along
+       the slices; ``stats["unresolved"]`` counts them).
 
     Beyond the paper (all measured against ``raymarch visibility=exact``):
     light-side attenuation in the medium box; anisotropic phase functions;
@@ -114,8 +119,12 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                paper; 1.4-10× lower relMSE on the suite
                                for 10-50 % more time)
     ``light_rays``             light rays ``d`` per slice; 0 (default):
-                               the image diagonal in pixels (≥ 32), more
-                               in thick media (4 per mean free path, ≤ 4096);
+                               the image diagonal in pixels (≥ 256), more
+                               in thick media (4 per mean free path, ≤ 4096)
+                               and where the light-side depth changes by
+                               more than 1/4 mean free path per light ray
+                               (directional: a grazing face,
+                               :func:`~integrators.epipolar_setup.light_side_step`);
                                point/spot: the widest slice's, narrower
                                slices get fewer at the same angular spacing
     ``svd_rank``               terms N of the separated kernel per colour
@@ -228,8 +237,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         modes = self.blocker_stage(params, cap, queries, side)
         rays, L, D = side.rays, side.L, side.D
         with self.stage("sweep") as keep:
+            d_count = mi.Int32(rays.d_count) if model.local else None
             integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count),
-                                        d_count=mi.Int32(rays.d_count) if model.local else None)
+                                        d_count=d_count)
             keep.append(integral)
         with self.stage("unrectify") as keep:
             # the last, partial light-ray interval of each query: ray-traced
@@ -243,10 +253,16 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms.last = (last_interval_correction(queries, A, B, L, last)
                           + model.band_correction(params, queries, rays, A, B, L, modes, last,
                                                   self.ASYMPTOTE_BAND))
-            terms.magnitude = sweep_magnitude(queries, A, B, L)
+            terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, D, d_count)
             value = assemble_queries(terms, gather_queries(queries, integral))
+            keep.extend([value, unshadowed, terms.magnitude])
+        with self.stage("ring") as keep:
+            # sums the separated kernel does not resolve: ray-marched
+            unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
+            value = remarch_samples(params, cap, queries, value, unresolved, self.ring_steps)
             keep.append(value)
-        self.record(last_interval_traced=last.traced, query_count=queries.count)
+        self.record(last_interval_traced=last.traced, query_count=queries.count,
+                    unresolved=dr.width(unresolved))
         return value
 
     # -- stages (each timed; an experiment may call or override them) -------------
