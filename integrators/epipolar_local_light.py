@@ -897,8 +897,9 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     Visibility: the cells' depth modes, the last cell's that of
     :func:`~integrators.epipolar_setup.last_interval_visibility` (``last``;
     :func:`~integrators.epipolar_setup.last_interval_correction` has already
-    turned the sweep's V_leaf into it); the exact mean is
-    :meth:`LocalKernel.cell_mean` over the covered part."""
+    turned the sweep's V_leaf into it); ``modes`` None: every cell before
+    the last is lit (``fourier_filter``'s unshadowed sum U); the exact mean
+    is :meth:`LocalKernel.cell_mean` over the covered part."""
     out = dr.zeros(mi.Color3f, queries.count)
     if not band_cells or not queries.count:
         return out
@@ -920,8 +921,9 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     row = dr.gather(mi.UInt32, queries.row, q)
     is_last = g == dr.gather(mi.UInt32, last.k0, q)
     cover = dr.select(is_last, dr.gather(mi.Float, last.f, q), 1.0)
-    V = dr.select(is_last, dr.gather(mi.Float, last.V, q),
-                  mode_visibility(modes, row, dr.gather(mi.UInt32, queries.col, q), g))
+    V_cells = (1.0 if modes is None else
+               mode_visibility(modes, row, dr.gather(mi.UInt32, queries.col, q), g))
+    V = dr.select(is_last, dr.gather(mi.Float, last.V, q), V_cells)
     beta = dr.gather(mi.Float, queries.beta, q)
     b = Angles.of(beta)
     gamma = rays.start(row) + mi.Float(g) * delta

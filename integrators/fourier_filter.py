@@ -27,8 +27,8 @@ from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, 
                                 projective_rectification, projective_rows)
 
 from .capture import capture_shadow_map
-from .epipolar_setup import (LightRays, assemble_queries, auto_light_rays, choose_slices,
-                             epipolar_frame_of)
+from .epipolar_setup import (LastInterval, LightRays, assemble_queries, auto_light_rays,
+                             choose_slices, epipolar_frame_of)
 from .light_models import light_model
 from .fourier_basis import check_M, region_length
 from .fourier_exact import exact_sums
@@ -334,6 +334,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     #: projective map's rows and texels are fitted to the whole frame
     ROW_SUBSETS = True
     SLICE_INTERPOLATION = True
+    #: point/spot lights, ``weights`` ``average``/``reference_ray``: light-ray
+    #: cells before each view ray's asymptote in which U takes the exact cell
+    #: means instead of the separated kernel (``epipolar_tree``'s band,
+    #: :class:`~integrators.epipolar_local_light.LocalSeparation`)
+    ASYMPTOTE_BAND = 2
 
     def read_method_properties(self, props):
         explicit_filter = any(k in props for k in FILTER_PROPERTIES)
@@ -471,7 +476,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               self.svd_rank, self.svd_tolerance)
             else:    # separated on the whole frame, evaluated at these rows
                 A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
-                                              self.svd_tolerance, frame_rays=frame_rays)
+                                              self.svd_tolerance, frame_rays=frame_rays,
+                                              band_cells=self.band_cells(plan))
             keep.extend([] if A is None else [A, B])
         with self.stage("rectify"):
             cover = Coverage.of(queries, rays)
@@ -486,11 +492,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V, Ls, unreliable = [], [], [], None
         C = channels(L, A, sigma_t)
+        with self.stage("evaluate") as keep:
+            band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
+                                   self.band_cells(plan))
+            keep.append(band)
         for c in range(C):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c, bad = self.channel_sums(params, queries, rays, smap, cover, parts,
                                               float(sigma_t[c]), length, beta_b, tail)
-            U.append(U_c)
+            U.append(U_c + band[c])
             V.append(V_c)
             Ls.append(parts.L)
             if bad is not None:
@@ -502,6 +512,13 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                   tail, V, unreliable, with_runs=self.weights == "exact")
                 keep.extend(V)
         return RectifiedSums(rays, beta_b, U, V, colour)
+
+    def band_cells(self, plan) -> int:
+        """The asymptote band of the separated kernel (``ASYMPTOTE_BAND``):
+        epipolar rows with ``weights`` ``average`` or ``reference_ray``,
+        whose separated kernel gives U alone (``exact``'s component filters
+        have no band correction: 0)."""
+        return self.ASYMPTOTE_BAND if plan is None and self.weights != "exact" else 0
 
     def rectified_map(self, queries, rays, beta_b):
         """The rectified shadow map of the blocker angles (§2.2, §4.1;
@@ -805,6 +822,21 @@ class KernelParts:
         for a, b in zip(self.A, self.B):
             U += b * cover.sum(self.L * a)
         return U
+
+
+def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
+                    band_cells: int) -> mi.Color3f:
+    """What U (:meth:`KernelParts.unshadowed`, the banded separated kernel)
+    misses in each query's asymptote band: the light model's
+    ``band_correction`` (``epipolar_tree``'s, Baran §9's kernel near
+    β + γ = π) with every cell lit and the last one covered to the query's
+    depth (0: no band, or no separated kernel)."""
+    if A is None or not band_cells:
+        return dr.zeros(mi.Color3f, queries.count)
+    k0 = cover.texel - queries.row * cover.d
+    ones = dr.full(mi.Float, 1.0, queries.count)
+    last = LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+    return model.band_correction(params, queries, rays, A, B, L, None, last, band_cells)
 
 
 def row_shift(a, smap) -> mi.Float:
