@@ -1,5 +1,6 @@
-"""``epipolar_tree`` at its defaults on the suite, before and after a change
-(issue 13, "the suite's accuracy and speed at defaults unchanged or better").
+"""``epipolar_tree`` (or ``--method``) at its defaults on the suite, before and
+after a change (issue 13, "the suite's accuracy and speed at defaults
+unchanged or better").
 
 Each scene is measured by two processes in turn, one per source tree
 (``--before TREE``: e.g. a detached worktree of main; the other: this
@@ -12,8 +13,8 @@ file).  Errors: scale-free relMSE (eps 1e-2·mean(ref)²), mean ratio, max
 two processes alternates from scene to scene.
 
 ``python -m experiments.suite_before_after --before /work/wt/h13-main
-[--scenes ...] [--out results/stability]`` writes
-``suite_before_after.json`` and ``.md``.
+[--scenes ...] [--method fourier_filter] [--size 320x240] [--out results/stability]``
+writes ``suite_before_after.json`` and ``.md``.
 """
 from __future__ import annotations
 
@@ -28,14 +29,15 @@ SUITE = ["nave_offscreen", "nave_onscreen", "grove", "terrain", "spot_room", "po
 WIDTH, HEIGHT = 640, 480
 
 
-def measure(scene_name: str, repeats: int) -> dict:
-    """This process's tree: errors and median times of epipolar_tree at its
+def measure(scene_name: str, repeats: int, method: str = "epipolar_tree",
+            width: int = WIDTH, height: int = HEIGHT) -> dict:
+    """This process's tree: errors and median times of ``method`` at its
     defaults on one suite scene."""
     from experiments import common as c
 
-    s = {"width": WIDTH, "height": HEIGHT, "reference_steps": c.REFERENCE_STEPS}
+    s = {"width": width, "height": height, "reference_steps": c.REFERENCE_STEPS}
     scene, ref, _ = c.scene_with_reference(scene_name, s, False)
-    t = c.time_renders(scene, {"tree": c.build("epipolar_tree", {})}, repeats=repeats)["tree"]
+    t = c.time_renders(scene, {"m": c.build(method, {})}, repeats=repeats)["m"]
     e = c.errors(t["image"], ref, blocks=(1,))
     return {"scene": scene_name, "relmse": e["relmse_b1"], "mean_ratio": e["mean_ratio_b1"],
             "max_err_over_peak": e["max_error_over_peak_b1"], "flip": e["flip_b1"],
@@ -43,13 +45,14 @@ def measure(scene_name: str, repeats: int) -> dict:
             "load": c.load_average()}
 
 
-def run_tree(tree: str, scene: str, repeats: int) -> dict:
+def run_tree(tree: str, scene: str, repeats: int, method: str = "epipolar_tree",
+             size: str = f"{WIDTH}x{HEIGHT}") -> dict:
     """:func:`measure` in a subprocess importing ``tree``'s packages (this
     file run with ``--measure`` from ``tree``)."""
     env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
     out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure", scene,
-                          "--repeats", str(repeats)], cwd=tree, env=env, capture_output=True,
-                         text=True, check=True).stdout
+                          "--repeats", str(repeats), "--method", method, "--size", size],
+                         cwd=tree, env=env, capture_output=True, text=True, check=True).stdout
     line = [x for x in out.splitlines() if x.startswith("RESULT ")][-1]
     return json.loads(line[len("RESULT "):])
 
@@ -81,10 +84,14 @@ def main(argv=None):
                    help="source tree of the 'after' version (default: this one)")
     p.add_argument("--scenes", nargs="+", default=SUITE)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--method", default="epipolar_tree", help="integrator (default epipolar_tree)")
+    p.add_argument("--size", default=f"{WIDTH}x{HEIGHT}", help="WxH (default 640x480)")
     p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "results/stability"))
     args = p.parse_args(argv)
+    width, height = (int(x) for x in args.size.lower().split("x"))
     if args.measure:
-        print("RESULT " + json.dumps(measure(args.measure, args.repeats)), flush=True)
+        print("RESULT " + json.dumps(measure(args.measure, args.repeats, args.method, width,
+                                             height)), flush=True)
         return
     if not args.before:
         p.error("--before TREE is required")
@@ -92,15 +99,16 @@ def main(argv=None):
     for i, scene in enumerate(args.scenes):
         order = [("before", args.before), ("after", args.after)]
         for version, tree in (order if i % 2 == 0 else order[::-1]):
-            r = {**run_tree(tree, scene, args.repeats), "version": version, "tree": tree}
+            r = {**run_tree(tree, scene, args.repeats, args.method, args.size),
+                 "version": version, "tree": tree}
             print(json.dumps(r), flush=True)
             rows.append(r)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "suite_before_after.json").write_text(json.dumps(rows, indent=1))
     text = "\n\n".join([
-        "# epipolar_tree at its defaults on the suite, before and after",
-        f"{WIDTH}x{HEIGHT}, 1 spp at **pixel centres**, against the exact working reference "
+        f"# {args.method} at its defaults on the suite, before and after",
+        f"{width}x{height}, 1 spp at **pixel centres**, against the exact working reference "
         "(raymarch visibility=exact, 2048 steps, cached). Scale-free relMSE (eps 1e-2 x "
         "mean(ref)^2), mean ratio, max |error| / reference peak, HDR-FLIP; end-to-end and "
         f"scattering time: median of {args.repeats} warm runs, OPENBLAS_NUM_THREADS=1, the two "
