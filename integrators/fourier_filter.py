@@ -480,7 +480,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             else:    # separated on the whole frame, evaluated at these rows
                 A, B = model.separated_kernel(params, queries, rays, self.svd_rank,
                                               self.svd_tolerance, frame_rays=frame_rays,
-                                              band_cells=self.band_cells(plan))
+                                              band_cells=self.band_cells(model, plan))
             keep.extend([] if A is None else [A, B])
         with self.stage("rectify"):
             cover = Coverage.of(queries, rays)
@@ -497,7 +497,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         C = channels(L, A, sigma_t)
         with self.stage("evaluate") as keep:
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
-                                   self.band_cells(plan))
+                                   self.band_cells(model, plan))
             keep.append(band)
         for c in range(C):
             parts = KernelParts.of(queries, rays, L, A, B, c)
@@ -516,12 +516,14 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 keep.extend(V)
         return RectifiedSums(rays, beta_b, U, V, colour)
 
-    def band_cells(self, plan) -> int:
+    def band_cells(self, model, plan) -> int:
         """The asymptote band of the separated kernel (``ASYMPTOTE_BAND``):
-        epipolar rows with ``weights`` ``average`` or ``reference_ray``,
+        point/spot lights (``model.local``) on epipolar rows with
+        ``weights`` ``average`` or ``reference_ray``,
         whose separated kernel gives U alone (``exact``'s component filters
         have no band correction: 0)."""
-        return self.ASYMPTOTE_BAND if plan is None and self.weights != "exact" else 0
+        return (self.ASYMPTOTE_BAND if model.local and plan is None and self.weights != "exact"
+                else 0)
 
     def rectified_map(self, queries, rays, beta_b):
         """The rectified shadow map of the blocker angles (§2.2, §4.1;
