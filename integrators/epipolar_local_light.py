@@ -884,6 +884,21 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
     return value
 
 
+def reaches_asymptote_band(queries: EpipolarQueries, rays: LocalLightRays,
+                           band_cells: int) -> bool:
+    """Whether any query's view ray reaches the asymptote band of
+    ``band_cells`` lattice cells before its limit angle π − β (with a
+    margin of one cell on each side: γ_end ≥ π − β − (band_cells + 2)·Δγ),
+    i.e. whether the banded kernel and :func:`asymptote_band_correction`
+    can change any query's sum.  Far from the light every view ray ends
+    well before its limit angle, and the plain kernel is used."""
+    if not band_cells or not queries.count:
+        return False
+    delta = float(rays.delta_gamma[0])
+    near = queries.gamma_end >= (math.pi - queries.beta) - (band_cells + 2) * delta
+    return bool(dr.any(near & (queries.beta < math.pi))[0])
+
+
 def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLightRays, A, B, L,
                                modes, last, band_cells: int) -> mi.Color3f:
     """Per query, the change of the sweep's sum when its light-ray cells in

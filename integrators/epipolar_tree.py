@@ -226,13 +226,16 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         # ``queries`` (all of them, or a partial render's RowSubset)
         whole = queries.whole_frame
         frame_side = self.light_side(params, cap, whole, model)
-        self.record(frame_choices=frame_choices(whole, frame_side.rays))
+        # the asymptote band only where some view ray of the frame reaches it
+        band = model.band_for(whole, frame_side.rays, self.ASYMPTOTE_BAND)
+        self.record(frame_choices=frame_choices(whole, frame_side.rays) + (("band", band),),
+                    asymptote_band=band)
         side = frame_side.of_rows(queries)
         with self.stage("svd") as keep:
             # separated on the whole frame, evaluated at these rows
             A, B = model.separated_kernel(params, queries, side.rays, self.svd_rank,
                                           self.svd_tolerance, frame_rays=frame_side.rays,
-                                          band_cells=self.ASYMPTOTE_BAND)
+                                          band_cells=band)
             keep.extend([A, B])
         modes = self.blocker_stage(params, cap, queries, side)
         rays, L, D = side.rays, side.L, side.D
@@ -252,7 +255,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms = model.query_terms(params, cap, queries, rays, side.colour, V0)
             terms.last = (last_interval_correction(queries, A, B, L, last)
                           + model.band_correction(params, queries, rays, A, B, L, modes, last,
-                                                  self.ASYMPTOTE_BAND))
+                                                  band))
             terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, D, d_count)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.extend([value, unshadowed, terms.magnitude])

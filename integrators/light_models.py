@@ -59,7 +59,7 @@ import drjit as dr
 from .epipolar_local_light import (LocalSeparation, asymptote_band_correction, light_ray_factor,
                                    local_light_ray_grid, local_query_terms, local_ray_kernel,
                                    radial_blocker_beta, radial_map_point,
-                                   trace_local_blocker_angles)
+                                   reaches_asymptote_band, trace_local_blocker_angles)
 from .epipolar_setup import (axial_blocker_beta, axial_map_point, directional_query_terms,
                              light_ray_grid, light_side_factor, shadow_map_blocker_angles,
                              trace_blocker_angles, trace_sub_ray_blockers)
@@ -135,6 +135,11 @@ class LightModel:
         """What the sweep's sum of each query misses in the asymptote band
         of a banded kernel (0: no band)."""
         return 0.0
+
+    def band_for(self, queries, rays, band_cells: int) -> int:
+        """The asymptote band a render needs: ``band_cells`` where some
+        query reaches it, else 0 (only the local light has one)."""
+        return 0
 
     def query_terms(self, params, cap, queries, rays, colour, V_near):
         """Per-query factors of the integral."""
@@ -213,6 +218,9 @@ class Local(LightModel):
 
     def band_correction(self, params, queries, rays, A, B, L, modes, last, band_cells):
         return asymptote_band_correction(params, queries, rays, A, B, L, modes, last, band_cells)
+
+    def band_for(self, queries, rays, band_cells):
+        return band_cells if reaches_asymptote_band(queries, rays, band_cells) else 0
 
 
 MODELS = (Directional(), Local())
