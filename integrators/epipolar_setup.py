@@ -996,6 +996,20 @@ class LastInterval:
         return dr.width(self.idx)
 
 
+def last_leaf(queries: EpipolarQueries, rays, D: mi.TensorXf) -> tuple[mi.UInt32, mi.Float]:
+    """(k0, f) per query: the leaf k0 = ⌊D⌋ of the sweep's lerp in which its
+    view ray ends and the fraction f = D − k0 of it the ray covers, with the
+    sweep's (n, r) depths ``D`` clamped to ``[0, d_count]`` as the sweep
+    clamps them (per row where the layout has ``row_counts()``)."""
+    d_count = rays.row_counts()
+    d_s = (dr.full(mi.Float, rays.d, queries.count) if d_count is None
+           else mi.Float(dr.gather(mi.UInt32, d_count, queries.row)))
+    Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)
+    Dq = dr.clip(dr.select(dr.isnan(Dq), 0.0, Dq), 0.0, d_s)
+    k0 = dr.maximum(dr.minimum(dr.floor(Dq), d_s - 1.0), 0.0)
+    return mi.UInt32(k0), Dq - k0
+
+
 def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQueries,
                              rays: LightRays, modes: BlockerModes,
                              D: mi.TensorXf, k: int = 1) -> LastInterval:
@@ -1038,16 +1052,8 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
     stage), point_fog, with its lit walls, for 60 %.  The correction of the
     sweep's sum is :func:`last_interval_correction`.
 
-    ``D``: the sweep's (n, r) depths, clamped to ``[0, d_count]`` as the
-    sweep clamps them (per row where the layout has ``row_counts()``)."""
-    d_count = rays.row_counts()
-    d_s = (dr.full(mi.Float, rays.d, queries.count) if d_count is None
-           else mi.Float(dr.gather(mi.UInt32, d_count, queries.row)))
-    Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)
-    Dq = dr.clip(dr.select(dr.isnan(Dq), 0.0, Dq), 0.0, d_s)
-    k0 = dr.maximum(dr.minimum(dr.floor(Dq), d_s - 1.0), 0.0)
-    f = Dq - k0
-    k0 = mi.UInt32(k0)
+    ``D``: the sweep's (n, r) depths (:func:`last_leaf`)."""
+    k0, f = last_leaf(queries, rays, D)
     V_leaf = leaf_visibility(queries, modes, k0)
     V_prev = leaf_visibility(queries, modes, dr.maximum(k0, 1) - 1)
     mixed = (V_leaf > MIXED_MARGIN) & (V_leaf < 1.0 - MIXED_MARGIN)
@@ -1151,7 +1157,7 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
 SWEEP_RESIDUE_EPS = 16 * 2.0 ** -23
 
 
-def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None):
+def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
     """(M, U) per query: the magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i| of
     every partial sum the sweep forms for it (the scale of its rounding)
     and the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the sweep without
@@ -1159,8 +1165,9 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None):
     form takes the last, partial light ray (cumulative sums lerped at D,
     :mod:`~integrators.partial_sum_tree`; each row's formed in parallel by
     ``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
-    None, (n|1, d) or (n|1, d, C); ``d_count``: light rays per row (None:
-    all d).
+    None, (n|1, d) or (n|1, d, C); ``last``: each query's last leaf and
+    its covered fraction (:func:`last_leaf`, via
+    :func:`last_interval_visibility`).
 
     The Fenwick tree removes a shadowed leaf by subtracting w·A·L from node
     sums that added A·L before; a view ray shadowed all along is left with
@@ -1189,12 +1196,7 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, D, d_count=None):
     v = dr.select(g < d, v, 0.0)
     cum_u = dr.block_prefix_sum(v, w)               # Σ_{γ<g} A_i L
     cum_m = dr.block_prefix_sum(dr.abs(v), w)       # Σ_{γ<g} |A_i L|
-    d_s = (dr.full(mi.UInt32, d, queries.count) if d_count is None
-           else mi.UInt32(dr.gather(mi.Int32, d_count, queries.row)))
-    Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)
-    Dq = dr.clip(dr.select(dr.isnan(Dq), 0.0, Dq), 0.0, mi.Float(d_s))
-    k0 = mi.UInt32(dr.maximum(dr.minimum(dr.floor(Dq), mi.Float(d_s) - 1.0), 0.0))
-    f = Dq - mi.Float(k0)
+    k0, f = last.k0, last.f
     row = queries.slot if nB > 1 else queries.col
     U, M = [], []
     for ch in range(C):

@@ -256,7 +256,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms.last = (last_interval_correction(queries, A, B, L, last)
                           + model.band_correction(params, queries, rays, A, B, L, modes, last,
                                                   band))
-            terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, D, d_count)
+            terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, last)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.extend([value, unshadowed, terms.magnitude])
         with self.stage("ring") as keep:
