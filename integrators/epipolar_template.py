@@ -195,7 +195,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         a narrow spot beam running along the slices lies between them, and
         the blend of a lit and a dark answer estimates neither side.  Only
         with ``slice_interpolation`` (a nearest-slice query has no second
-        answer); ``stats["remarched"]`` counts the samples.  A narrow spot
+        answer); ``stats["remarched"]`` counts the samples.  The samples the
+        method asked to march (``RenderRecord.march``, e.g. the tree's
+        unresolved sums) are marched in the same pass.  A narrow spot
         light's few lit samples are marched too
         (:func:`~integrators.epipolar_local_light.cone_samples`, chosen on
         the whole frame so that a partial render marches what the full one
@@ -203,7 +205,10 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         with self.stage("ring") as keep:
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
             remarch = union_samples(queries.n_samples, remarch, cone_samples(params, queries))
+            self.record(remarched=dr.width(remarch))
+            # with the samples the method asked for (RenderRecord.march)
+            asked, self.render_record.march = self.render_record.march, []
+            remarch = union_samples(queries.n_samples, remarch, *asked)
             values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps)
             keep.append(values)
-        self.record(remarched=dr.width(remarch))
         return values

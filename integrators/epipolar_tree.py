@@ -16,8 +16,8 @@ import mitsuba as mi
 from .capture import capture_shadow_map
 from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibility,
                              gather_queries, last_interval_correction,
-                             last_interval_visibility, rectified_depth, remarch_samples,
-                             sweep_magnitude, unresolved_samples)
+                             last_interval_visibility, rectified_depth, sweep_magnitude,
+                             unresolved_samples)
 from .light_models import light_model
 from .partial_sum_tree import integrate_slices
 from .row_subset import frame_choices, take_light_rays, take_rows
@@ -259,11 +259,10 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, last)
             value = assemble_queries(terms, gather_queries(queries, integral))
             keep.extend([value, unshadowed, terms.magnitude])
-        with self.stage("ring") as keep:
-            # sums the separated kernel does not resolve: ray-marched
-            unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
-            value = remarch_samples(params, cap, queries, value, unresolved, self.ring_steps)
-            keep.append(value)
+        # sums the separated kernel does not resolve: ray-marched by the
+        # template with the samples it re-marches anyway (remarch_disagreeing)
+        unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
+        self.render_record.march.append(unresolved)
         self.record(last_interval_traced=last.traced, query_count=queries.count,
                     unresolved=dr.width(unresolved))
         return value

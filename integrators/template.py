@@ -105,6 +105,10 @@ class RenderRecord:
     stats: dict = field(default_factory=dict)
     given: object = None
     frame_state: object = None
+    #: camera-sample index lists (mi.UInt32) whose values the method could
+    #: not resolve and asks the epipolar template to ray-march with the
+    #: samples it marches anyway (one march: ``remarch_disagreeing``)
+    march: list = field(default_factory=list)
 
 
 #: the record of the render running in this thread/context
