@@ -142,3 +142,90 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
         body=body,
     )
     return L
+
+
+def inverse_square_factor(params, cap, lo, hi, t_mid):
+    """∫_lo^hi dt / r² divided by (hi − lo) / r²(t_mid) on each camera ray
+    (r: distance to the point/spot light; 1 for a directional light): the
+    factor that turns a light term evaluated at ``t_mid`` into the exact
+    integral of its 1/r² over ``[lo, hi]`` (∫ dt / (b² + (t − t0)²) =
+    Δatan / b, as :func:`step_boundaries`' equiangular segments)."""
+    if params.light.position is None:
+        return 1.0
+    q = mi.Vector3f(mi.Point3f(*map(float, params.light.position)) - cap.o)
+    t0 = dr.dot(q, cap.omega)
+    b = dr.maximum(dr.norm(q - cap.omega * t0), 1e-30)
+    exact = (dr.atan2(hi - t0, b) - dr.atan2(lo - t0, b)) / b
+    r2 = dr.square(b) + dr.square(t_mid - t0)
+    ok = (hi - lo) > 1e-6 * dr.sqrt(r2)
+    return dr.select(ok, exact * r2 / dr.maximum(hi - lo, 1e-30), 1.0)
+
+
+def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
+    """L_scat per camera sample like :func:`march` with exact visibility,
+    but each segment's lit part is located instead of sampled at one point:
+    the lit test ℓ(x) = V(x) ∧ L_light(x) > 0 (ray-traced visibility, the
+    spot's cone) is taken at both ends and the midpoint of each segment, and
+    where it changes inside a half, ``bisections`` bisections find the
+    crossing.  Each half's lit interval [a, b] then contributes its light
+    term at its own midpoint times the exact ∫_a^b e^{-σt t} dt and 1/r²
+    (:func:`inverse_square_factor`).  A shadow edge is thus placed to
+    ~2^-bisections of a half-segment instead of a whole one: the midpoint
+    rule's error on a thin shaft (lit over a few segments) is of the order
+    of one segment over the shaft's lit length.  Features that lie wholly
+    between two of the three test points are still missed (or counted whole).
+    The working reference (DESIGN §2); cost ≈ 2 + bisections·(crossings)
+    traces per segment."""
+    n = dr.width(cap.d)
+    sigma_t = color(params.medium.sigma_t)
+    sigma_s = color(params.medium.sigma_s)
+    t_of, _ = _steps(params, cap, steps, spacing)
+    n_steps = dr.opaque(mi.UInt32, steps)
+    n_bis = dr.opaque(mi.UInt32, bisections)
+
+    def lit(t, active=True):
+        x = cap.o + cap.omega * t
+        wo, dist, L_light = sample_light(params, x, active)
+        _, t_in, t_out = segment_box(params, x, wo, dist)
+        return visible_exact(params, x, wo, dist, t_in, t_out, active) & (dr.max(L_light) > 0.0)
+
+    def crossing(lo, hi, lit_lo, active):
+        """The t in [lo, hi] where ℓ changes (it is ``lit_lo`` at lo)."""
+        def body(i, lo, hi):
+            m = 0.5 * (lo + hi)
+            same = lit(m, active) == lit_lo
+            return i + 1, dr.select(same, m, lo), dr.select(same, hi, m)
+        _, lo, hi = dr.while_loop(state=(mi.UInt32(0), lo, hi),
+                                  cond=lambda i, lo, hi: active & (i < n_bis), body=body)
+        return 0.5 * (lo + hi)
+
+    def half(a, b, lit_a, lit_b):
+        """The lit interval of [a, b] and its contribution."""
+        change = lit_a != lit_b
+        c = crossing(a, b, lit_a, change)
+        lo = dr.select(change & ~lit_a, c, a)
+        hi = dr.select(change & lit_a, c, b)
+        on = lit_a | lit_b
+        tm = 0.5 * (lo + hi)
+        x = cap.o + cap.omega * tm
+        wo, dist, L_light = sample_light(params, x, on)
+        tau, _, _ = segment_box(params, x, wo, dist)
+        f_p = phase_eval(params, cap.omega, wo, x)
+        w = segment_weight(sigma_t, lo, hi) * inverse_square_factor(params, cap, lo, hi, tm)
+        value = sigma_s * f_p * L_light * light_transmittance(params, tau) * w
+        return dr.select(on & (hi > lo), value, 0.0)
+
+    def body(k, L, lit_a):
+        s = mi.Float(k)
+        a, b = t_of(s), t_of(s + 1)
+        m = 0.5 * (a + b)
+        lit_m, lit_b = lit(m), lit(b)
+        L += half(a, m, lit_a, lit_m) + half(m, b, lit_m, lit_b)
+        return k + 1, L, lit_b
+
+    _, L, _ = dr.while_loop(
+        state=(mi.UInt32(0), dr.zeros(mi.Color3f, n), lit(t_of(mi.Float(0.0)))),
+        cond=lambda k, L, lit_a: k < n_steps,
+        body=body,
+    )
+    return L

@@ -33,6 +33,13 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
                            bounded shadow volumes; needs ``visibility=exact``)
 ``volume_boxes``           boxes per occluder mesh bounding its shadow
                            volume for ``hybrid`` (default 8)
+``boundary_bisections``    0 (default: the light term at one point per
+                           segment) or the bisections that locate each
+                           segment's shadow and cone edges
+                           (:func:`~integrators.marching.march_bisected`;
+                           needs ``visibility=exact``, ``march=full``, no
+                           ``jitter``): a thin shaft's lit length is then
+                           exact, not a whole number of segments
 =========================  ==================================================
 """
 from __future__ import annotations
@@ -41,7 +48,7 @@ import mitsuba as mi
 
 from .capture import capture_shadow_map
 from .hybrid_march import shadow_range
-from .marching import auto_spacing, march
+from .marching import auto_spacing, march, march_bisected
 from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
 
 
@@ -56,6 +63,13 @@ class RaymarchIntegrator(EpiscatterIntegrator):
                                    ("auto", "uniform", "equiangular", "cone"))
         self.march = read_choice(props, "march", "full", ("full", "hybrid"))
         self.volume_boxes = read_number(props, "volume_boxes", 8, minimum=1, integer=True)
+        self.boundary_bisections = read_number(props, "boundary_bisections", 0, minimum=0,
+                                               maximum=40, integer=True)
+        if self.boundary_bisections and (self.visibility != "exact" or self.march != "full"
+                                         or self.jitter):
+            raise ValueError("Property 'boundary_bisections' bisects ray-traced visibility "
+                             "along each camera ray: set visibility='exact', march='full' and "
+                             "jitter=false (or boundary_bisections=0).")
         if self.march == "hybrid" and self.visibility != "exact":
             raise ValueError("Property 'march' = 'hybrid' traces exact visibility inside the "
                              "shadow volumes: set visibility='exact' (or march='full').")
@@ -90,6 +104,8 @@ class RaymarchIntegrator(EpiscatterIntegrator):
             with self.stage("shadow_volumes") as keep:
                 t_range = shadow_range(params, cap, self.volume_boxes)
                 keep.extend(t_range)
+        if self.boundary_bisections:
+            return march_bisected(params, cap, self.steps, self.boundary_bisections, spacing)
         return march(params, cap, self.steps, shadow_map, self.jitter, self.render_record.seed,
                      spacing, t_range)
 mi.register_integrator("raymarch", lambda props: RaymarchIntegrator(props))
