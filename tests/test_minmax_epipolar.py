@@ -114,11 +114,13 @@ def random_height_map(rng, S, n, lo, hi, runs=True):
     return z
 
 
-def test_tree_build_matches_reference():
+@pytest.mark.parametrize("colours", ["random", "panes", "rim"])
+def test_tree_build_matches_reference(colours):
     rng = np.random.default_rng(2)
     S, n = 3, 32
     z = random_height_map(rng, S, n, 0.0, 1.0)
-    colour = rng.integers(0, 3, (S, n, 3)).astype(np.float64)
+    colour = rng.integers(0, 3, (S, n, 3)).astype(np.float64) if colours == "random" \
+        else texel_colours(rng, S, n, colours)
     rays = fake_light_rays(z, z, colour, np.zeros(S), np.full(S, 0.1))
     tree = mt.build_tree(rays)
     ref = mt.build_tree_reference(z, z, colour)
@@ -131,6 +133,12 @@ def test_tree_build_matches_reference():
         assert np.array_equal(zmin[sl].reshape(S, m), a.astype(np.float32))
         assert np.array_equal(zmax[sl].reshape(S, m), b.astype(np.float32))
         assert np.array_equal(state[sl].reshape(S, m), mt.colour_state_reference(c, d))
+    states = [mt.colour_state_reference(c, d) for _, _, c, d in ref]
+    drop = np.asarray(tree.drop)
+    for level, d in enumerate(mt.drop_reference(states)):
+        off, m = mt.MinMaxTree.offset(n, level), n >> level
+        sl = (np.arange(S)[:, None] * 2 * n + off + np.arange(m)[None]).ravel()
+        assert np.array_equal(drop[sl].reshape(S, m), d), level
 
 
 def test_overflowed_light_colour_is_not_a_constant_colour():
@@ -259,16 +267,17 @@ def lit_ramp_march(make_scene, tally=False):
 
 
 def test_lit_run_of_mixed_colour_costs_one_step_per_texel(make_scene):
-    """A lit node of mixed colour is split once: its texels are then marched
-    at level 0 without climbing back into mixed nodes (issue 14: the spot's
-    fall-off rim cost ~1.5 steps per texel), the integral the per-texel
-    march's (its own oracle-tested sum)."""
+    """A lit node of mixed colour is split once, dropping straight to the
+    leaf (``MinMaxTree.drop``): its texels are then marched at level 0
+    without climbing back into mixed nodes (issue 14: the spot's fall-off
+    rim cost ~1.5 steps per texel), the integral the per-texel march's (its
+    own oracle-tested sum)."""
     full, flat = lit_ramp_march(make_scene)
     L_full, L_flat = np3(full.L), np3(flat.L)
     assert np.all(np.abs(L_full - L_flat) <= 2e-5 * (np.abs(L_flat).max(axis=0) + 1e-12))
     texels, steps = np.asarray(flat.steps), np.asarray(full.steps)
     assert np.all(texels > 20)
-    assert np.all(steps <= texels + 2 * 8 + 2)          # + a descent and a climb of log2 n
+    assert np.all(steps <= texels + 2)                  # the split, dropping to the leaf
 
 
 def test_step_tally_counts_every_step(make_scene):

@@ -37,9 +37,11 @@ Lit runs (issue 14): a node lit by its depth test but of ``MIXED`` colour
 (a spot's fall-off rim, the edges of a projected texture's panes) has every
 texel lit, only their colours differ.  The march remembers that (``run_end``,
 the node's end) and descends; inside the run no depth test can fail, and it
-does not climb back into a ``MIXED`` node (that would be split again), so the
-rim costs one step per texel instead of about 1.5, and uniform sub-nodes are
-still taken whole.
+does not climb back into a ``MIXED`` node (that would be split again), nor
+descend through one: it drops straight to the highest node starting at the
+same texel that is not ``MIXED`` (``MinMaxTree.drop``, else the leaf).  The
+rim then costs one step per texel instead of about 1.5, and uniform
+sub-nodes are still taken whole.
 
 Resampled blockers store conservative (min, max) per texel and their leaves
 are not decisive: a leaf then reads the shadow map's PCF visibility at its
@@ -79,6 +81,10 @@ class MinMaxTree:
     z_max: mi.Float = field(repr=False)
     state: mi.UInt32 | None = field(repr=False, default=None)
     constant_colour: tuple | None = None
+    #: per node (with ``state``): the highest level ``≤`` its own at which the
+    #: node starting at its first texel is not ``MIXED`` (0: none), where a
+    #: descent inside a lit run stops (module docstring)
+    drop: mi.UInt32 | None = field(repr=False, default=None)
     slices: int = 0
 
     @staticmethod
@@ -137,11 +143,13 @@ def build_tree(rays: SliceLightRays, max_level: int | None = None,
     size = S * 2 * n
     z_min, z_max = dr.full(mi.Float, dr.inf, size), dr.full(mi.Float, -dr.inf, size)
     state = None if const is not None else dr.full(mi.UInt32, MIXED, size)
+    drop = None if const is not None else dr.zeros(mi.UInt32, size)
     idx = dr.arange(mi.UInt32, S * n)
     k = idx // n
     dst = k * (2 * n) + (idx - k * n)
     lo, hi = mi.Float(rays.z_min), mi.Float(rays.z_max)
     c_lo = c_hi = rays.colour
+    d = dr.zeros(mi.UInt32, S * n)              # level 0: drop to the leaf itself
     dr.scatter(z_min, lo, dst)
     dr.scatter(z_max, hi, dst)
     if state is not None:
@@ -160,12 +168,15 @@ def build_tree(rays: SliceLightRays, max_level: int | None = None,
         if state is not None:
             c_lo = dr.minimum(dr.gather(mi.Color3f, c_lo, a), dr.gather(mi.Color3f, c_lo, a + 1))
             c_hi = dr.maximum(dr.gather(mi.Color3f, c_hi, a), dr.gather(mi.Color3f, c_hi, a + 1))
-            dr.scatter(state, colour_state(c_lo, c_hi), dst)
-            dr.eval(c_lo, c_hi)
+            st = colour_state(c_lo, c_hi)
+            d = dr.select(st == MIXED, dr.gather(mi.UInt32, d, a), mi.UInt32(level))
+            dr.scatter(state, st, dst)
+            dr.scatter(drop, d, dst)
+            dr.eval(c_lo, c_hi, d)
         dr.eval(lo, hi)
-    dr.eval(z_min, z_max) if state is None else dr.eval(z_min, z_max, state)
+    dr.eval(z_min, z_max) if state is None else dr.eval(z_min, z_max, state, drop)
     return MinMaxTree(n=n, levels=max_level + 1, z_min=z_min, z_max=z_max, state=state,
-                      constant_colour=const, slices=S)
+                      constant_colour=const, slices=S, drop=drop)
 
 
 def build_tree_reference(z_min, z_max, colour, max_level=None):
@@ -179,6 +190,21 @@ def build_tree_reference(z_min, z_max, colour, max_level=None):
         a, b, c, d = out[-1]
         out.append((np.minimum(a[:, ::2], a[:, 1::2]), np.maximum(b[:, ::2], b[:, 1::2]),
                     np.minimum(c[:, ::2], c[:, 1::2]), np.maximum(d[:, ::2], d[:, 1::2])))
+    return out
+
+
+def drop_reference(states):
+    """NumPy twin of ``MinMaxTree.drop`` from the per-level colour states
+    (list of (S, n >> l) arrays, level 0 first), by a scan down each node's
+    first texels."""
+    out = []
+    for level, st in enumerate(states):
+        d = np.zeros(st.shape, dtype=np.int64)
+        for k, j in np.ndindex(*st.shape):
+            first = j << level
+            d[k, j] = next((m for m in range(level, 0, -1)
+                            if states[m][k, first >> m] != MIXED), 0)
+        out.append(d)
     return out
 
 
@@ -359,7 +385,14 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
             I = I * dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add)
         L = dr.select(add, L + I, L)
         i_next = dr.select(done, i + size, i)
-        level = dr.select(done, climb(i_next, level, run_end), level - 1)
+        down = level - 1
+        if tree.state is not None:
+            # inside a lit run the mixed nodes below would only be split:
+            # go straight to the first node that is not (``drop``)
+            skip = ~done & (i < run_end)
+            child = base + (2 * n - ((2 * n) >> down)) + (i >> down)
+            down = dr.select(skip, dr.gather(mi.UInt32, tree.drop, child, skip), down)
+        level = dr.select(done, climb(i_next, level, run_end), down)
         return (i_next, level, L, steps + 1, run_end, *counts)
 
     width = dr.width(rays.t_end)
