@@ -526,3 +526,16 @@ def test_explicit_properties_override_the_profile(make_scene):
     integ = mi.load_dict({"type": "minmax_epipolar", "profile": "balanced", "samples": 77})
     s = integ.settings(p)
     assert s == dict(slices=512, samples=77, light_rays=1024, shadowmap_resolution=1024)
+
+
+def test_step_budget_adds_up_to_the_renders_mean_steps(make_scene):
+    """``experiments.minmax_step_budget``: the kinds' mean steps per
+    integration sample add up to the render's own ``mean_steps``."""
+    from experiments.minmax_step_budget import tallied_render
+    scene = make_scene(light="spot_textured", res=(32, 24))
+    integ = mi.load_dict({"type": "minmax_epipolar"})
+    budget = tallied_render(scene, integ)
+    stats = integ.render_layers(scene, spp=1).stats
+    assert set(budget) == set(mt.STEP_KINDS)
+    assert sum(budget.values()) == pytest.approx(stats["mean_steps"], rel=1e-6)
+    assert budget["colour_split"] + budget["lit_leaf"] > 0
