@@ -114,11 +114,13 @@ def random_height_map(rng, S, n, lo, hi, runs=True):
     return z
 
 
-def test_tree_build_matches_reference():
+@pytest.mark.parametrize("colours", ["random", "panes", "rim"])
+def test_tree_build_matches_reference(colours):
     rng = np.random.default_rng(2)
     S, n = 3, 32
     z = random_height_map(rng, S, n, 0.0, 1.0)
-    colour = rng.integers(0, 3, (S, n, 3)).astype(np.float64)
+    colour = rng.integers(0, 3, (S, n, 3)).astype(np.float64) if colours == "random" \
+        else texel_colours(rng, S, n, colours)
     rays = fake_light_rays(z, z, colour, np.zeros(S), np.full(S, 0.1))
     tree = mt.build_tree(rays)
     ref = mt.build_tree_reference(z, z, colour)
@@ -131,6 +133,12 @@ def test_tree_build_matches_reference():
         assert np.array_equal(zmin[sl].reshape(S, m), a.astype(np.float32))
         assert np.array_equal(zmax[sl].reshape(S, m), b.astype(np.float32))
         assert np.array_equal(state[sl].reshape(S, m), mt.colour_state_reference(c, d))
+    states = [mt.colour_state_reference(c, d) for _, _, c, d in ref]
+    drop = np.asarray(tree.drop)
+    for level, d in enumerate(mt.drop_reference(states)):
+        off, m = mt.MinMaxTree.offset(n, level), n >> level
+        sl = (np.arange(S)[:, None] * 2 * n + off + np.arange(m)[None]).ravel()
+        assert np.array_equal(drop[sl].reshape(S, m), d), level
 
 
 def test_overflowed_light_colour_is_not_a_constant_colour():
@@ -170,16 +178,31 @@ def moments_np(a, b):
     return np.array([b - a, b * b - a * a, b ** 3 - a ** 3])
 
 
+def texel_colours(rng, S, n, textured):
+    """Light colours per texel: white; panes of 8 texels (some black); or a
+    spot's fall-off rim — a ramp, every texel its own colour — over panes of
+    16 (issue 14: lit runs of mixed colour)."""
+    if not textured:
+        return np.ones((S, n, 3))
+    panes = np.repeat(rng.integers(0, 3, (S, n // 8, 3)), 8, axis=1).astype(np.float64)
+    if textured == "panes":
+        return panes
+    ramp = np.linspace(0.1, 1.0, n)[None, :, None] * np.ones((S, 1, 3))
+    rim = np.arange(n) < n // 3
+    return np.where(rim[None, :, None], ramp, np.repeat(panes[:, ::2], 2, axis=1))
+
+
 @pytest.mark.parametrize("light", ["directional", "point"])
-@pytest.mark.parametrize("textured", [False, True])
+@pytest.mark.parametrize("textured", [None, "panes", "rim"])
 def test_traversal_equals_per_texel_march(make_scene, light, textured):
     """The tree's sections are unions of the per-texel march's lit texels:
     identical integrals (to float32 rounding) for random height maps with
     runs, blocker-free gaps and blockers at the light, rays clipped at the
-    γ range's start (spot cone), zero-length rays and rays inside one texel."""
+    γ range's start (spot cone), zero-length rays and rays inside one texel;
+    light colours white, in panes, or a ramp (lit runs of mixed colour)."""
     p = params_of(make_scene, light=light)
     frame = epipolar_frame_of(p)
-    rng = np.random.default_rng(3 + textured)
+    rng = np.random.default_rng(3 + bool(textured))
     S, n, R = 4, 64, 72
     k = rng.integers(0, S, R)
     beta = rng.uniform(0.05, math.pi - 0.6, R)
@@ -199,9 +222,7 @@ def test_traversal_equals_per_texel_march(make_scene, light, textured):
     u_top = 5.0 if light == "directional" else 0.0
     depth_lo, depth_hi = (u_top - 3.0, u_top + 3.0) if light == "directional" else (0.0, 6.0)
     z = random_height_map(rng, S, n, depth_lo, depth_hi)
-    colour = np.ones((S, n, 3))
-    if textured:
-        colour = np.repeat(rng.integers(0, 3, (S, n // 8, 3)), 8, axis=1).astype(np.float64)
+    colour = texel_colours(rng, S, n, textured)
     rays = fake_light_rays(z, z, colour, gamma_lo, delta, u_top=u_top, bias=1e-4)
     tree = mt.build_tree(rays)
     srays = mt.SliceRays(k=mi.UInt32(k.astype(np.uint32)), beta=mi.Float(beta.astype(np.float32)),
@@ -221,6 +242,54 @@ def test_traversal_equals_per_texel_march(make_scene, light, textured):
             float(np.float32(beta[r])), float(np.float32(t_near[r])), float(np.float32(t_end[r])),
             moments_np, alpha=float(np.float32(alpha[k[r]])))
         assert np.allclose(L_flat[r], ref, rtol=1e-3, atol=2e-4 * scale.max()), r
+
+
+def lit_ramp_march(make_scene, tally=False):
+    """Point light, one slice of n = 256 texels without blockers and a ramp
+    of light colours (every texel its own): rays that cross many texels."""
+    p = params_of(make_scene, light="point")
+    frame = epipolar_frame_of(p)
+    n, R = 256, 16
+    z = np.full((1, n), np.inf)
+    colour = np.linspace(0.1, 1.0, n)[None, :, None] * np.ones((1, n, 3))
+    beta = np.linspace(0.3, 2.0, R)
+    from rectify import view_to_light_reference
+    t_end = np.full(R, 3.0)
+    g_max = max(view_to_light_reference(frame, 0.0, b, 0.01 + 3.0)[0] for b in beta) * 1.01
+    rays = fake_light_rays(z, z, colour, [0.0], [g_max / n])
+    srays = mt.SliceRays(k=mi.UInt32(np.zeros(R, np.uint32)), beta=mi.Float(beta.astype(np.float32)),
+                         t_near=mi.Float(np.full(R, 0.01, np.float32)),
+                         t_end=mi.Float(t_end.astype(np.float32)),
+                         alpha=mi.Float(np.zeros(R, np.float32)))
+    tree = mt.build_tree(rays)
+    return (mt.march_tree(frame, rays, tree, srays, moments, tally=tally),
+            mt.march_tree(frame, rays, tree, srays, moments, max_level=0))
+
+
+def test_lit_run_of_mixed_colour_costs_one_step_per_texel(make_scene):
+    """A lit node of mixed colour is split once, dropping straight to the
+    leaf (``MinMaxTree.drop``): its texels are then marched at level 0
+    without climbing back into mixed nodes (issue 14: the spot's fall-off
+    rim cost ~1.5 steps per texel), the integral the per-texel march's (its
+    own oracle-tested sum)."""
+    full, flat = lit_ramp_march(make_scene)
+    L_full, L_flat = np3(full.L), np3(flat.L)
+    assert np.all(np.abs(L_full - L_flat) <= 2e-5 * (np.abs(L_flat).max(axis=0) + 1e-12))
+    texels, steps = np.asarray(flat.steps), np.asarray(full.steps)
+    assert np.all(texels > 20)
+    assert np.all(steps <= texels + 2)                  # the split, dropping to the leaf
+
+
+def test_step_tally_counts_every_step(make_scene):
+    """``tally``: the steps of each kind add up to the steps; a blocker-free
+    ramp has only lit steps and colour splits."""
+    full, _ = lit_ramp_march(make_scene, tally=True)
+    t = {k: np.asarray(v) for k, v in full.tally.items()}
+    assert set(t) == set(mt.STEP_KINDS)
+    assert np.array_equal(sum(t.values()), np.asarray(full.steps))
+    assert all(t[k].sum() == 0 for k in ("dark_node", "dark_leaf", "black", "boundary_split",
+                                         "boundary_leaf"))
+    assert t["lit_leaf"].sum() > 0 and t["colour_split"].sum() > 0
 
 
 # --------------------------------------------------------------------------
@@ -457,3 +526,16 @@ def test_explicit_properties_override_the_profile(make_scene):
     integ = mi.load_dict({"type": "minmax_epipolar", "profile": "balanced", "samples": 77})
     s = integ.settings(p)
     assert s == dict(slices=512, samples=77, light_rays=1024, shadowmap_resolution=1024)
+
+
+def test_step_budget_adds_up_to_the_renders_mean_steps(make_scene):
+    """``experiments.minmax_step_budget``: the kinds' mean steps per
+    integration sample add up to the render's own ``mean_steps``."""
+    from experiments.minmax_step_budget import tallied_render
+    scene = make_scene(light="spot_textured", res=(32, 24))
+    integ = mi.load_dict({"type": "minmax_epipolar"})
+    budget = tallied_render(scene, integ)
+    stats = integ.render_layers(scene, spp=1).stats
+    assert set(budget) == set(mt.STEP_KINDS)
+    assert sum(budget.values()) == pytest.approx(stats["mean_steps"], rel=1e-6)
+    assert budget["colour_split"] + budget["lit_leaf"] > 0

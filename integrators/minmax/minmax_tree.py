@@ -33,6 +33,16 @@ closest point to the light (point/spot), so the two end points bound it
 the tree's sections are unions of the per-texel ones.  ``max_level = 0`` is
 the per-texel march itself (the talk's brute force along the slice).
 
+Lit runs (issue 14): a node lit by its depth test but of ``MIXED`` colour
+(a spot's fall-off rim, the edges of a projected texture's panes) has every
+texel lit, only their colours differ.  The march remembers that (``run_end``,
+the node's end) and descends; inside the run no depth test can fail, and it
+does not climb back into a ``MIXED`` node (that would be split again), nor
+descend through one: it drops straight to the highest node starting at the
+same texel that is not ``MIXED`` (``MinMaxTree.drop``, else the leaf).  The
+rim then costs one step per texel instead of about 1.5, and uniform
+sub-nodes are still taken whole.
+
 Resampled blockers store conservative (min, max) per texel and their leaves
 are not decisive: a leaf then reads the shadow map's PCF visibility at its
 point (``leaf_visibility``).
@@ -71,6 +81,10 @@ class MinMaxTree:
     z_max: mi.Float = field(repr=False)
     state: mi.UInt32 | None = field(repr=False, default=None)
     constant_colour: tuple | None = None
+    #: per node (with ``state``): the highest level ``≤`` its own at which the
+    #: node starting at its first texel is not ``MIXED`` (0: none), where a
+    #: descent inside a lit run stops (module docstring)
+    drop: mi.UInt32 | None = field(repr=False, default=None)
     slices: int = 0
 
     @staticmethod
@@ -129,11 +143,13 @@ def build_tree(rays: SliceLightRays, max_level: int | None = None,
     size = S * 2 * n
     z_min, z_max = dr.full(mi.Float, dr.inf, size), dr.full(mi.Float, -dr.inf, size)
     state = None if const is not None else dr.full(mi.UInt32, MIXED, size)
+    drop = None if const is not None else dr.zeros(mi.UInt32, size)
     idx = dr.arange(mi.UInt32, S * n)
     k = idx // n
     dst = k * (2 * n) + (idx - k * n)
     lo, hi = mi.Float(rays.z_min), mi.Float(rays.z_max)
     c_lo = c_hi = rays.colour
+    d = dr.zeros(mi.UInt32, S * n)              # level 0: drop to the leaf itself
     dr.scatter(z_min, lo, dst)
     dr.scatter(z_max, hi, dst)
     if state is not None:
@@ -152,12 +168,15 @@ def build_tree(rays: SliceLightRays, max_level: int | None = None,
         if state is not None:
             c_lo = dr.minimum(dr.gather(mi.Color3f, c_lo, a), dr.gather(mi.Color3f, c_lo, a + 1))
             c_hi = dr.maximum(dr.gather(mi.Color3f, c_hi, a), dr.gather(mi.Color3f, c_hi, a + 1))
-            dr.scatter(state, colour_state(c_lo, c_hi), dst)
-            dr.eval(c_lo, c_hi)
+            st = colour_state(c_lo, c_hi)
+            d = dr.select(st == MIXED, dr.gather(mi.UInt32, d, a), mi.UInt32(level))
+            dr.scatter(state, st, dst)
+            dr.scatter(drop, d, dst)
+            dr.eval(c_lo, c_hi, d)
         dr.eval(lo, hi)
-    dr.eval(z_min, z_max) if state is None else dr.eval(z_min, z_max, state)
+    dr.eval(z_min, z_max) if state is None else dr.eval(z_min, z_max, state, drop)
     return MinMaxTree(n=n, levels=max_level + 1, z_min=z_min, z_max=z_max, state=state,
-                      constant_colour=const, slices=S)
+                      constant_colour=const, slices=S, drop=drop)
 
 
 def build_tree_reference(z_min, z_max, colour, max_level=None):
@@ -171,6 +190,21 @@ def build_tree_reference(z_min, z_max, colour, max_level=None):
         a, b, c, d = out[-1]
         out.append((np.minimum(a[:, ::2], a[:, 1::2]), np.maximum(b[:, ::2], b[:, 1::2]),
                     np.minimum(c[:, ::2], c[:, 1::2]), np.maximum(d[:, ::2], d[:, 1::2])))
+    return out
+
+
+def drop_reference(states):
+    """NumPy twin of ``MinMaxTree.drop`` from the per-level colour states
+    (list of (S, n >> l) arrays, level 0 first), by a scan down each node's
+    first texels."""
+    out = []
+    for level, st in enumerate(states):
+        d = np.zeros(st.shape, dtype=np.int64)
+        for k, j in np.ndindex(*st.shape):
+            first = j << level
+            d[k, j] = next((m for m in range(level, 0, -1)
+                            if states[m][k, first >> m] != MIXED), 0)
+        out.append(d)
     return out
 
 
@@ -234,17 +268,41 @@ def t_at_gamma(frame: EpipolarFrame, rays: SliceRays, gamma, t_lo, t_hi):
 class MarchResult:
     L: mi.Color3f = field(repr=False)       # Σ colour · V · I over the sections
     steps: mi.UInt32 = field(repr=False)    # loop iterations per ray
+    tally: dict | None = field(repr=False, default=None)   # steps per kind (``STEP_KINDS``)
+
+
+#: what a step of the march met (``march_tree(tally=True)``): a node taken
+#: whole lit / shadowed above level 0 or at a leaf, shadowed by its colour
+#: state (``BLACK``), split because its colour is ``MIXED`` though its depth
+#: test says lit, or split because the ray's depth straddles the node's
+#: blocker range (a genuine shadow boundary; at a leaf: resampled blockers)
+STEP_KINDS = ("lit_node", "lit_leaf", "dark_node", "dark_leaf", "black", "colour_split",
+              "boundary_split", "boundary_leaf")
+
+
+def step_kind(lit_depth, dark_depth, state, leaf):
+    """Index into ``STEP_KINDS`` of each lane's step."""
+    black = ~dark_depth & (state == BLACK)
+    mixed = state == MIXED
+    k = dr.select(leaf, mi.UInt32(7), mi.UInt32(6))                     # boundary
+    k = dr.select(lit_depth & mixed & ~leaf, mi.UInt32(5), k)
+    k = dr.select(lit_depth & ~mixed, dr.select(leaf, mi.UInt32(1), mi.UInt32(0)), k)
+    k = dr.select(lit_depth & mixed & leaf, mi.UInt32(1), k)
+    k = dr.select(dark_depth, dr.select(leaf, mi.UInt32(3), mi.UInt32(2)), k)
+    return dr.select(black, mi.UInt32(4), k)
 
 
 def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTree,
                rays: SliceRays, section, max_level: int | None = None,
-               leaf_visibility=None) -> MarchResult:
+               leaf_visibility=None, tally: bool = False) -> MarchResult:
     """March every ray through its slice's tree (module docstring).
 
     ``section(t_a, t_b)`` → Color3f is the unit-colour in-scattering of a ray
     section (:mod:`.section_integral`; it may close over per-ray values).
     ``leaf_visibility(t)`` → Float in [0, 1] (resampled blockers) replaces the
-    leaf's own test.  ``max_level`` caps the levels used (0: per texel)."""
+    leaf's own test.  ``max_level`` caps the levels used (0: per texel).
+    ``tally``: also count the steps of each kind (``STEP_KINDS``, a diagnosis
+    of where the steps go; the march itself is unchanged)."""
     n = light_rays.n
     top = tree.levels - 1 if max_level is None else max(0, min(int(max_level), tree.levels - 1))
     lo_k = dr.gather(mi.Float, mi.Float(light_rays.gamma_lo.astype(np.float32)), rays.k)
@@ -276,28 +334,44 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
     def start_level(i):
         return dr.minimum(dr.tzcnt(i), top)
 
-    def climb(i, level):
+    def climb(i, level, run_end):
         """One level up if ``i`` starts a node of the next level (talk: the
-        march's level follows the local scale of the height map)."""
+        march's level follows the local scale of the height map), unless
+        that node lies in the lit run (``i < run_end``) and its colour is
+        ``MIXED``: it would only be split again."""
         up = (level < top) & (((i >> level) & 1) == 0)
+        if tree.state is not None:
+            parent = base + (2 * n - ((2 * n) >> (level + 1))) + (i >> (level + 1))
+            mixed = dr.gather(mi.UInt32, tree.state, parent, up & (i < run_end)) == MIXED
+            up &= ~(mixed & (i < run_end))
         return dr.select(up, level + 1, level)
 
-    def cond(i, level, L, steps):
+    def cond(i, level, L, steps, run_end, *counts):
         return active & (i <= i_last)
 
-    def body(i, level, L, steps):
+    def body(i, level, L, steps, run_end, *counts):
         size = mi.UInt32(1) << level
         end = dr.minimum(i + size, i_last + 1)              # texels [i, end) of the ray
         node = base + (2 * n - ((2 * n) >> level)) + (i >> level)
         z_lo, z_hi = dr.gather(mi.Float, tree.z_min, node), dr.gather(mi.Float, tree.z_max, node)
         r_lo, r_hi = depth_range(frame, rays, u_top, t_test(i), t_test(end - 1))
-        lit = r_hi <= z_lo + bias
-        dark = r_lo > z_hi + bias
+        in_run = i < run_end                # texels [i, run_end) are known lit (lit run)
+        lit = in_run | (r_hi <= z_lo + bias)
+        dark = ~in_run & (r_lo > z_hi + bias)
+        leaf = level == 0
+        if counts:
+            st = mi.UInt32(UNIFORM) if tree.state is None else \
+                dr.gather(mi.UInt32, tree.state, node)
+            kind = step_kind(lit, dark, st, leaf)
+            counts = tuple(c + dr.select(kind == j, mi.UInt32(1), mi.UInt32(0))
+                           for j, c in enumerate(counts))
         if tree.state is not None:
             st = dr.gather(mi.UInt32, tree.state, node)
+            # lit by depth but of mixed colour: every texel of the node is
+            # lit, only its colours differ; remember so (the lit run) and descend
+            run_end = dr.select(lit & (st == MIXED) & ~leaf, dr.maximum(run_end, end), run_end)
             lit &= st == UNIFORM
             dark |= st == BLACK
-        leaf = level == 0
         V = dr.select(lit, 1.0, 0.0)
         if leaf_visibility is not None:
             undecided = leaf & ~lit & ~dark
@@ -311,15 +385,24 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
             I = I * dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add)
         L = dr.select(add, L + I, L)
         i_next = dr.select(done, i + size, i)
-        level = dr.select(done, climb(i_next, level), level - 1)
-        return i_next, level, L, steps + 1
+        down = level - 1
+        if tree.state is not None:
+            # inside a lit run the mixed nodes below would only be split:
+            # go straight to the first node that is not (``drop``)
+            skip = ~done & (i < run_end)
+            child = base + (2 * n - ((2 * n) >> down)) + (i >> down)
+            down = dr.select(skip, dr.gather(mi.UInt32, tree.drop, child, skip), down)
+        level = dr.select(done, climb(i_next, level, run_end), down)
+        return (i_next, level, L, steps + 1, run_end, *counts)
 
-    state = (mi.UInt32(i_first), start_level(i_first), dr.zeros(mi.Color3f, dr.width(rays.t_end)),
-             dr.zeros(mi.UInt32, dr.width(rays.t_end)))
-    i, level, L, steps = dr.while_loop(state=state, cond=cond, body=body)
+    width = dr.width(rays.t_end)
+    counts = tuple(dr.zeros(mi.UInt32, width) for _ in STEP_KINDS) if tally else ()
+    state = (mi.UInt32(i_first), start_level(i_first), dr.zeros(mi.Color3f, width),
+             dr.zeros(mi.UInt32, width), mi.UInt32(i_first), *counts)
+    i, level, L, steps, _, *counts = dr.while_loop(state=state, cond=cond, body=body)
     if tree.constant_colour is not None:
         L = L * mi.Color3f(*tree.constant_colour)
-    return MarchResult(L=L, steps=steps)
+    return MarchResult(L=L, steps=steps, tally=dict(zip(STEP_KINDS, counts)) if tally else None)
 
 
 # --------------------------------------------------------------------------
