@@ -10,6 +10,7 @@ camera-side transmittance over the segment (:func:`march`).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import drjit as dr
 import mitsuba as mi
@@ -102,6 +103,31 @@ def _cone_angles(params, omega, q, t0, b, th_a, th_b):
     return dr.select(hit, lo, th_a), dr.select(hit, hi, th_a)
 
 
+class PointTerms(NamedTuple):
+    """The light term at points x = o + t·ω of the camera rays."""
+    x: mi.Point3f
+    wo: mi.Vector3f         # toward the light
+    dist: mi.Float          # to the light (inf: directional)
+    t_in: mi.Float          # the part [t_in, t_out] of x -> light inside the medium box
+    t_out: mi.Float
+    L_light: mi.Color3f     # Mitsuba's delivered radiance
+    radiance: mi.Color3f    # σs · f_p · L_light · e^{-σt τ}: all but V and the segment weight
+
+    def visible(self, params, active=True):
+        """Ray-traced V(x) (:func:`~integrators.light_transport.visible_exact`)."""
+        return visible_exact(params, self.x, self.wo, self.dist, self.t_in, self.t_out, active)
+
+
+def point_terms(params, cap, t, active=True) -> PointTerms:
+    """:class:`PointTerms` at ``t`` on each camera ray of ``cap``."""
+    x = cap.o + cap.omega * t
+    wo, dist, L_light = sample_light(params, x, active)
+    tau, t_in, t_out = segment_box(params, x, wo, dist)
+    f_p = phase_eval(params, cap.omega, wo, x)
+    radiance = color(params.medium.sigma_s) * f_p * L_light * light_transmittance(params, tau)
+    return PointTerms(x, wo, dist, t_in, t_out, L_light, radiance)
+
+
 def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="uniform",
           shadow_range=None):
     """L_scat per camera sample by ``steps`` analytic segments (see module doc).
@@ -110,7 +136,6 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
     (:func:`integrators.hybrid_march.shadow_range`)."""
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
-    sigma_s = color(params.medium.sigma_s)
     t_of, correction = _steps(params, cap, steps, spacing)
     if jitter:
         offset = sample_rng(cap.sample_index(),
@@ -122,18 +147,15 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
     def body(k, L):
         s = mi.Float(k)
         t = t_of(s + offset)
-        x = cap.o + cap.omega * t
-        wo, dist, L_light = sample_light(params, x)
-        tau, t_in, t_out = segment_box(params, x, wo, dist)
+        pt = point_terms(params, cap, t)
         if shadow_map is None:
             active = True if shadow_range is None else \
                 (t >= shadow_range[0]) & (t <= shadow_range[1])
-            V = dr.select(visible_exact(params, x, wo, dist, t_in, t_out, active), 1.0, 0.0)
+            V = dr.select(pt.visible(params, active), 1.0, 0.0)
         else:
-            V = shadow_map.visibility(x)
-        f_p = phase_eval(params, cap.omega, wo, x)
+            V = shadow_map.visibility(pt.x)
         w = segment_weight(sigma_t, t_of(s), t_of(s + 1)) * correction(s, offset)
-        L += sigma_s * f_p * L_light * light_transmittance(params, tau) * V * w
+        L += pt.radiance * V * w
         return k + 1, L
 
     k, L = dr.while_loop(
@@ -178,16 +200,13 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     traces per segment."""
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
-    sigma_s = color(params.medium.sigma_s)
     t_of, _ = _steps(params, cap, steps, spacing)
     n_steps = dr.opaque(mi.UInt32, steps)
     n_bis = dr.opaque(mi.UInt32, bisections)
 
     def lit(t, active=True):
-        x = cap.o + cap.omega * t
-        wo, dist, L_light = sample_light(params, x, active)
-        _, t_in, t_out = segment_box(params, x, wo, dist)
-        return visible_exact(params, x, wo, dist, t_in, t_out, active) & (dr.max(L_light) > 0.0)
+        pt = point_terms(params, cap, t, active)
+        return pt.visible(params, active) & (dr.max(pt.L_light) > 0.0)
 
     def crossing(lo, hi, lit_lo, active):
         """The t in [lo, hi] where ℓ changes (it is ``lit_lo`` at lo)."""
@@ -207,12 +226,8 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
         hi = dr.select(change & lit_a, c, b)
         on = lit_a | lit_b
         tm = 0.5 * (lo + hi)
-        x = cap.o + cap.omega * tm
-        wo, dist, L_light = sample_light(params, x, on)
-        tau, _, _ = segment_box(params, x, wo, dist)
-        f_p = phase_eval(params, cap.omega, wo, x)
         w = segment_weight(sigma_t, lo, hi) * inverse_square_factor(params, cap, lo, hi, tm)
-        value = sigma_s * f_p * L_light * light_transmittance(params, tau) * w
+        value = point_terms(params, cap, tm, on).radiance * w
         return dr.select(on & (hi > lo), value, 0.0)
 
     def body(k, L, lit_a):
