@@ -1,28 +1,69 @@
 """How far is the 2048-step exact working reference (raymarch
-visibility=exact, midpoint rule) from converged?  Scale-free relMSE (pixel
-centres) of it and of 4096 steps against 8192 steps, per suite scene, one
-JSON line each.
+visibility=exact, midpoint rule) from converged?  Scale-free relMSE at the
+pixel centres, one JSON line per scene.
 
-``python -m experiments.reference_convergence W H scene,scene,...``
-(results/reference_convergence/s320_2048_vs_8192.jsonl: 320 240, the suite)."""
+``python -m experiments.reference_convergence W H scene,scene,...``: it and
+4096 steps against 8192 midpoint steps
+(results/reference_convergence/s320_2048_vs_8192.jsonl: 320 240, the suite).
+
+``... --against-bisected``: it, ``epipolar_tree`` at its defaults and
+``raymarch visibility=exact steps=256`` against ``raymarch visibility=exact
+steps=1024 boundary_bisections=12`` (:func:`integrators.marching.march_bisected`),
+each also against the 2048-step reference
+(results/reference_convergence/beam1280.json: 1280 960 beam)."""
+import argparse
 import json
-import sys
+
+import numpy as np
 
 from experiments import common as c
 
+EXACT = "raymarch"
 
-def main():
-    W, H = int(sys.argv[1]), int(sys.argv[2])
-    for name in sys.argv[3].split(","):
-        s = {"width": W, "height": H, "reference_steps": c.REFERENCE_STEPS}
+
+def image(scene, method, props):
+    """One render (no warm-up: nothing is timed)."""
+    return np.asarray(c.time_renders(scene, {"m": c.build(method, props)}, repeats=1,
+                                     warm_up=False)["m"]["image"])
+
+
+def relmse(img, ref):
+    e = c.errors(img, ref, blocks=(1,))
+    return e["relmse_b1"], e["max_error_over_peak_b1"]
+
+
+def midpoint_row(name, scene, ref):
+    fine = {st: image(scene, EXACT, {"visibility": "exact", "steps": st}) for st in (4096, 8192)}
+    r, m = relmse(ref, fine[8192])
+    return {"relmse_2048_vs_8192": r, "max_err_2048": m,
+            "relmse_4096_vs_8192": relmse(fine[4096], fine[8192])[0]}
+
+
+def bisected_row(name, scene, ref):
+    conv = image(scene, EXACT, {"visibility": "exact", "steps": 1024, "boundary_bisections": 12})
+    out = {"against": "raymarch exact steps=1024 boundary_bisections=12"}
+    tests = {"reference_2048": ref, "tree_defaults": image(scene, "epipolar_tree", {}),
+             "raymarch_exact256": image(scene, EXACT, {"visibility": "exact", "steps": 256})}
+    for k, v in tests.items():
+        r, m = relmse(v, conv)
+        out[k] = {"relmse": r, "max_error_over_peak": m,
+                  "relmse_vs_reference_2048": relmse(v, ref)[0]}
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("width", type=int)
+    ap.add_argument("height", type=int)
+    ap.add_argument("scenes")
+    ap.add_argument("--against-bisected", action="store_true")
+    a = ap.parse_args(argv)
+    row = bisected_row if a.against_bisected else midpoint_row
+    for name in a.scenes.split(","):
+        s = {"width": a.width, "height": a.height, "reference_steps": c.REFERENCE_STEPS}
         scene, ref, _ = c.scene_with_reference(name, s, False)
-        out = {}
-        for st in (4096, 8192):
-            t = c.time_renders(scene, {"m": c.build("raymarch", {"visibility": "exact", "steps": st})}, repeats=1)["m"]
-            out[st] = t["image"]
-        e1 = c.errors(ref, out[8192], blocks=(1,)); e2 = c.errors(out[4096], out[8192], blocks=(1,))
-        print(json.dumps({"scene": name, "size": [W, H], "relmse_2048_vs_8192": e1["relmse_b1"], "max_err_2048": e1["max_error_over_peak_b1"],
-                          "relmse_4096_vs_8192": e2["relmse_b1"]}), flush=True)
+        print(json.dumps({"scene": name, "size": [a.width, a.height],
+                          **row(name, scene, np.asarray(ref))}), flush=True)
 
 
 if __name__ == "__main__":

@@ -60,10 +60,7 @@ def _steps(params, cap, steps, spacing):
     uniform = lambda s: d * (s / steps)            # noqa: E731
     if spacing == "uniform" or params.light.position is None:
         return uniform, lambda s, offset: 1.0
-    p_l = mi.Point3f(*map(float, params.light.position))
-    q = mi.Vector3f(p_l - cap.o)
-    t0 = dr.dot(q, cap.omega)
-    b = dr.norm(q - cap.omega * t0)
+    q, t0, b = closest_approach(params, cap)
     ok = b > 1e-6 * dr.norm(q)          # the ray is resolvably off the light
     b = dr.select(ok, b, 1.0)
     th_a, th_b = dr.atan2(-t0, b), dr.atan2(d - t0, b)
@@ -81,6 +78,15 @@ def _steps(params, cap, steps, spacing):
         c = (th_b - th_a) / steps / b * r2 / dr.maximum(t2 - t1, 1e-30)
         return dr.select(ok & (t2 > t1), c, 1.0)
     return t_of, correction
+
+
+def closest_approach(params, cap):
+    """(q, t0, b) per camera ray of a point/spot light: q = light − o, the
+    ray parameter t0 of its closest point to the light and that distance b
+    (r² = b² + (t − t0)² along the ray)."""
+    q = mi.Vector3f(mi.Point3f(*map(float, params.light.position)) - cap.o)
+    t0 = dr.dot(q, cap.omega)
+    return q, t0, dr.norm(q - cap.omega * t0)
 
 
 def _cone_angles(params, omega, q, t0, b, th_a, th_b):
@@ -166,17 +172,17 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
     return L
 
 
-def inverse_square_factor(params, cap, lo, hi, t_mid):
+def inverse_square_factor(approach, lo, hi, t_mid):
     """∫_lo^hi dt / r² divided by (hi − lo) / r²(t_mid) on each camera ray
-    (r: distance to the point/spot light; 1 for a directional light): the
+    (r: distance to the point/spot light; ``approach``: its
+    :func:`closest_approach`, None for a directional light, factor 1): the
     factor that turns a light term evaluated at ``t_mid`` into the exact
     integral of its 1/r² over ``[lo, hi]`` (∫ dt / (b² + (t − t0)²) =
     Δatan / b, as :func:`step_boundaries`' equiangular segments)."""
-    if params.light.position is None:
+    if approach is None:
         return 1.0
-    q = mi.Vector3f(mi.Point3f(*map(float, params.light.position)) - cap.o)
-    t0 = dr.dot(q, cap.omega)
-    b = dr.maximum(dr.norm(q - cap.omega * t0), 1e-30)
+    _, t0, b = approach
+    b = dr.maximum(b, 1e-30)
     exact = (dr.atan2(hi - t0, b) - dr.atan2(lo - t0, b)) / b
     r2 = dr.square(b) + dr.square(t_mid - t0)
     ok = (hi - lo) > 1e-6 * dr.sqrt(r2)
@@ -203,6 +209,7 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     t_of, _ = _steps(params, cap, steps, spacing)
     n_steps = dr.opaque(mi.UInt32, steps)
     n_bis = dr.opaque(mi.UInt32, bisections)
+    approach = None if params.light.position is None else closest_approach(params, cap)
 
     def lit(t, active=True):
         pt = point_terms(params, cap, t, active)
@@ -226,7 +233,7 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
         hi = dr.select(change & lit_a, c, b)
         on = lit_a | lit_b
         tm = 0.5 * (lo + hi)
-        w = segment_weight(sigma_t, lo, hi) * inverse_square_factor(params, cap, lo, hi, tm)
+        w = segment_weight(sigma_t, lo, hi) * inverse_square_factor(approach, lo, hi, tm)
         value = point_terms(params, cap, tm, on).radiance * w
         return dr.select(on & (hi > lo), value, 0.0)
 

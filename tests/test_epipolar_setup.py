@@ -653,7 +653,7 @@ def _magnitude_problem(coloured, seed=5, n=3, d=300, r=40, N=3):
     v = A4 * L[:, :, None, None]                                       # (n, d, 3, N)
     s, b = np.divmod(np.arange(n * r), r)
     cover = np.clip(k0[:, None] + f[:, None] - np.arange(d)[None], 0.0, 1.0)   # (Q, d)
-    vq = v[s if coloured else s] if v.shape[0] > 1 else v[np.zeros_like(s)]
+    vq = v[s if v.shape[0] > 1 else np.zeros_like(s)]
     U = np.einsum("qg,qgcn,qn->qc", cover, vq.astype(np.float64), B[0][b])
     M = np.einsum("qg,qgcn,qn->qc", cover, np.abs(vq.astype(np.float64)), np.abs(B[0][b]))
     return q, mi.TensorXf(A), mi.TensorXf(B), mi.TensorXf(L), last, U, M

@@ -359,14 +359,12 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         lit = in_run | (r_hi <= z_lo + bias)
         dark = ~in_run & (r_lo > z_hi + bias)
         leaf = level == 0
+        st = None if tree.state is None else dr.gather(mi.UInt32, tree.state, node)
         if counts:
-            st = mi.UInt32(UNIFORM) if tree.state is None else \
-                dr.gather(mi.UInt32, tree.state, node)
-            kind = step_kind(lit, dark, st, leaf)
+            kind = step_kind(lit, dark, mi.UInt32(UNIFORM) if st is None else st, leaf)
             counts = tuple(c + dr.select(kind == j, mi.UInt32(1), mi.UInt32(0))
                            for j, c in enumerate(counts))
-        if tree.state is not None:
-            st = dr.gather(mi.UInt32, tree.state, node)
+        if st is not None:
             # lit by depth but of mixed colour: every texel of the node is
             # lit, only its colours differ; remember so (the lit run) and descend
             run_end = dr.select(lit & (st == MIXED) & ~leaf, dr.maximum(run_end, end), run_end)
