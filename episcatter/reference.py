@@ -8,9 +8,11 @@ Two kinds of reference are rendered from the *same* scene file:
     ``max_depth=2``; otherwise a fresh ``volpath`` (``max_depth=2``) is built.
     The sidecar says which (``integrator_source``).
 ``exact``
-    ``raymarch`` with ``visibility="exact"`` and many ``steps``: deterministic
-    along each camera ray, the working reference once it agrees with volpath.
-    Its samples per pixel only antialias (jittered box filter).
+    ``raymarch`` with ``visibility="exact"``, many ``steps`` and
+    :data:`EXACT_BISECTIONS` boundary bisections
+    (:func:`integrators.marching.march_bisected`): deterministic along each
+    camera ray, the working reference once it agrees with volpath.  Its
+    samples per pixel only antialias (jittered box filter).
 
 Either is rendered in chunks of ``chunk`` samples per pixel with distinct
 seeds (0, 1, 2, ...).  Even chunks accumulate into ``half_a``, odd chunks into
@@ -52,7 +54,13 @@ from .scene_loading import (load_scene, make_integrator, prepare_scene_file, sce
 KINDS = ("volpath", "exact")
 DEFAULT_SPP = {"volpath": 4096, "exact": 16}
 DEFAULT_CHUNK = {"volpath": 64, "exact": 4}
-DEFAULT_EXACT_STEPS = 1024
+DEFAULT_EXACT_STEPS = 2048
+#: boundary bisections of the ``exact`` kind (raymarch ``boundary_bisections``):
+#: the plain midpoint rule rounds a thin shaft's lit length to whole segments
+#: (2048 steps: relMSE 2.0e-4 against 8192 on beam at 320×240, 5.5e-6 on the
+#: grove); bisected, 2048 steps agree with 4096 (16 bisections) to 3e-10 on
+#: beam (results/reference_convergence/).  Part of the cache key.
+EXACT_BISECTIONS = 12
 NOISE_BLOCKS = (1, 4, 8)
 VOLPATH_CLASS = "VolumetricPathIntegrator"
 
@@ -75,7 +83,8 @@ def _kind_settings(kind: str, steps: int | None) -> dict:
         return {"integrator": "volpath", "max_depth": 2}
     if kind == "exact":
         return {"integrator": "raymarch", "visibility": "exact",
-                "steps": int(steps or DEFAULT_EXACT_STEPS)}
+                "steps": int(steps or DEFAULT_EXACT_STEPS),
+                "boundary_bisections": EXACT_BISECTIONS}
     raise ValueError(f"Reference kind '{kind}' is not one of {list(KINDS)}.")
 
 
@@ -197,6 +206,20 @@ def _is_volpath_depth2(integrator) -> bool:
     return "max_depth=2," in text or "max_depth=2\n" in text
 
 
+def exact_description(steps: int | None = None) -> str:
+    """What the ``exact`` kind renders, e.g. 'raymarch visibility=exact
+    steps=2048 boundary_bisections=12'."""
+    return (f"raymarch visibility=exact steps={int(steps or DEFAULT_EXACT_STEPS)} "
+            f"boundary_bisections={EXACT_BISECTIONS}")
+
+
+def exact_props(steps: int | None = None) -> dict:
+    """The ``raymarch`` properties of the ``exact`` kind (what a script that
+    renders the working reference itself should pass)."""
+    settings = _kind_settings("exact", steps)
+    return {k: v for k, v in settings.items() if k != "integrator"}
+
+
 def reference_integrator(scene, kind: str, steps: int | None = None):
     """(integrator, source, description) for a reference of ``kind``."""
     settings = _kind_settings(kind, steps)
@@ -209,7 +232,7 @@ def reference_integrator(scene, kind: str, steps: int | None = None):
             f"{own.class_name() if own is not None else 'none'}"
     props = {k: v for k, v in settings.items() if k != "integrator"}
     integ = make_integrator("raymarch", props)
-    return integ, "fresh", f"raymarch visibility=exact steps={props['steps']}"
+    return integ, "fresh", exact_description(props["steps"])
 
 
 def chunk_plan(spp: int, chunk: int) -> list[int]:
@@ -427,7 +450,8 @@ def render_reference(scene_path, defines=None, spp=None, chunk=None, cache_dir=N
         Re-render even if the cache holds this reference.
     kind, steps:
         ``volpath`` (ground truth) or ``exact`` (``raymarch
-        visibility=exact steps=steps``, default 1024 steps).
+        visibility=exact steps=steps boundary_bisections=12``, default
+        2048 steps: :func:`exact_props`).
     eps:
         Regularizer of the relMSE noise estimate.
     scheduler, workers:

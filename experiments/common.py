@@ -36,7 +36,7 @@ from episcatter import bench, metrics
 from episcatter.blas import blas_threads, limit_blas_threads
 from episcatter.reference import environment as _base_environment
 from episcatter.conventions import pixel_centre_reference
-from episcatter.reference import render_rgb, unwrap_render_error
+from episcatter.reference import exact_description, render_rgb, unwrap_render_error
 from episcatter.scene_loading import load_scene, make_integrator
 
 #: repository root and the folder experiments write into
@@ -72,7 +72,9 @@ def resolution(width: int, height: int) -> dict:
 def exact_reference(scene_path: str, defines: dict, steps: int = REFERENCE_STEPS,
                     progress: bool = True):
     """(image, info) of the exact working reference: ``raymarch
-    visibility=exact steps=steps``, one sample per pixel at the pixel centre.
+    visibility=exact steps=steps boundary_bisections=12``
+    (:func:`episcatter.reference.exact_props`), one sample per pixel at the
+    pixel centre.
 
     Rendered (or read from the cache) by :func:`render_reference` with
     ``spp=2, chunk=1``: its two halves are one non-jittered sample each, so
@@ -85,7 +87,7 @@ def exact_reference(scene_path: str, defines: dict, steps: int = REFERENCE_STEPS
 def reference_note(steps: int = REFERENCE_STEPS) -> str:
     """One sentence saying what the reference and the error are (for tables
     and JSON)."""
-    return (f"exact working reference: raymarch visibility=exact steps={steps}, "
+    return (f"exact working reference: {exact_description(steps)}, "
             "1 sample per pixel at the pixel centre (same sample positions as the tested "
             "methods: pixel-centre convention); errors after block x block averaging of "
             f"both images; relMSE = {metrics.eps_text(metrics.DEFAULT_EPS)}")

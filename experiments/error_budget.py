@@ -33,10 +33,14 @@ import time
 
 import numpy as np
 
+from episcatter.reference import exact_description, exact_props
+
 NAME = "error_budget"
 #: the generated scenes held out (experiments.random_scenes kind)
 KIND = "shafts"
-REFERENCE = {"type": "raymarch", "visibility": "exact", "steps": 2048}
+REFERENCE = {"type": "raymarch", **exact_props(2048)}
+#: what quality_auto's probe marches (plain midpoint rule), at the steps of PROBE_VARIANTS
+PROBE_REFERENCE = {"type": "raymarch", "visibility": "exact"}
 #: (probe pixels, probe reference steps) whose estimates are compared with the truth
 PROBE_VARIANTS = tuple(itertools.product((150, 300, 600, 1200), (256, 512, 1024)))
 LEVELS = (1e-3, 1e-4, 1e-5)
@@ -260,7 +264,7 @@ def run_scene(name, scene, ref, methods, repeats, log):
     h, w = ref.shape[:2]
     diag = math.hypot(w, h)
     choices, sweep, probes = [], [], []
-    refs = {n: render_rgb(scene, mi.load_dict({**REFERENCE, "steps": n}), spp=1)
+    refs = {n: render_rgb(scene, mi.load_dict({**PROBE_REFERENCE, "steps": n}), spp=1)
             for n in sorted({st for _, st in PROBE_VARIANTS})}
     for method in methods:
         try:
@@ -402,7 +406,7 @@ HOW_DRAWN = (
     "[0.3, 30], 3-8 box/sphere occluders in the view frustum (for point/spot lights between "
     "the light and a point in view), a directional light 20-160° off the view axis or a "
     "point/spot light inside the frustum, fov 35-80°, pixel centres; a seed is kept only if "
-    "its reference (`raymarch visibility=exact steps=2048`) is finite, lit on >= 2 % of the "
+    "its reference (`" + exact_description(2048) + "`) is finite, lit on >= 2 % of the "
     "pixels and the cheapest marcher (16 exact steps) misses relMSE 1e-4 (the budget "
     "matters).  The rule was fitted on the suite's frontier runs (results/frontier/quick640, "
     "quick160), none of these scenes.")
@@ -493,7 +497,7 @@ def main(argv=None) -> int:
                              {"seeds": [n for n, _, _ in scenes], "skipped": skipped,
                               "methods": args.methods, "size": list(size), "repeats": repeats,
                               "fit": args.fit, "fitted": fit,
-                              "reference": "raymarch visibility=exact steps=2048, pixel centres",
+                              "reference": exact_description(2048) + ", pixel centres",
                               "kind": args.kind}, probes)
     print(text)
     return 0

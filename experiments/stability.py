@@ -45,6 +45,8 @@ import re
 
 import numpy as np
 
+from episcatter.reference import exact_description, exact_props
+
 from . import common as c
 
 NAME = "stability"
@@ -269,8 +271,7 @@ def run_case(case: dict, s: dict, scale1_refs: dict) -> list[dict]:
 
     scene = mi.load_dict(stress_scene(case["light"], case["sigma_t"], case["scale"], s["res"],
                                       camera=case.get("camera")))
-    ref, status = render(scene, "raymarch", {"visibility": "exact",
-                                             "steps": s["reference_steps"]})
+    ref, status = render(scene, "raymarch", exact_props(s["reference_steps"]))
     base = {"group": case["group"], "case": case["case"], "sigma_t": case["sigma_t"],
             "scale": case["scale"], "light": case["light"]["type"]}
     if ref is None:
@@ -429,7 +430,7 @@ def run_random_scene(spec, methods=RANDOM_METHODS, reference_steps: int = c.REFE
     ``params`` if given) on one generated scene, scattering only, one row per
     method; the unoccluded reference's peak only where the reference is black."""
     scene = spec.load()
-    exact = {"visibility": "exact", "steps": reference_steps, "output": "scattering"}
+    exact = {**exact_props(reference_steps), "output": "scattering"}
     ref, status = render(scene, "raymarch", exact)
     base = {"seed": spec.seed, "kind": spec.kind, "light": spec.light["type"],
             "res": f"{spec.res[0]}x{spec.res[1]}", "sigma_t_B": spec.sigma_t * spec.box_half,
@@ -505,7 +506,7 @@ def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
     return "\n\n".join([
         f"# stability, randomised set (seeds {first_seed}..{first_seed + n - 1})",
         "Scenes of experiments.random_scenes; each integrator at its defaults, output "
-        f"scattering, 1 spp at pixel centres against raymarch visibility=exact steps={steps}. "
+        f"scattering, 1 spp at pixel centres against {exact_description(steps)}. "
         f"Scale-free relMSE (eps 1e-2 x mean(ref)^2). Bounded: lit reference -> no NaN/Inf, "
         f"relMSE <= {BOUND:g}, max |error| <= {PEAK_BOUND:g} x peak, |mean ratio - 1| <= "
         f"{MEAN_BOUND:g}; black reference -> largest value <= {LEAK_BOUND:g} x the unoccluded "
@@ -668,7 +669,7 @@ def main(argv=None):
     rows = case_order(rows, all_cases(s))
     text = "\n\n".join([
         f"# stability ({s['res'][0]}x{s['res'][1]}, 1 spp)",
-        f"Against raymarch visibility=exact steps={s['reference_steps']} at the same pixel "
+        f"Against {exact_description(s['reference_steps'])} at the same pixel "
         f"centres; relMSE eps 1e-2; bounded = no NaN/Inf, relMSE <= {BOUND:g} and max |error| "
         f"<= {PEAK_BOUND:g} x the reference's peak (NaN/Inf pixels are left out of the other "
         "metrics). "

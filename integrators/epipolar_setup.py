@@ -240,23 +240,42 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     """(sample, slice, weight) of the queries of samples ``idx`` when each
     is shared between its two neighbouring slices, weights 1 − f and f
     (:func:`~rectify.slices.alpha_to_slice`).  Only slices that are some
-    sample's nearest take shares: where the sinh placement (§8) puts
-    slices closer than the pixels (toward the epipole) the others would
-    add rows of their own for little, and the nearest slice is there well
-    within half a pixel.  So a sample one of whose neighbours is nobody's
-    nearest, or within ``SNAP`` of a slice, is one query of weight 1."""
-    k0, k1, f = alpha_to_slice(slices, dr.gather(mi.Float, alpha, idx))
+    sample's nearest (*used* slices) take shares: where the sinh placement
+    (§8) puts slices closer than the pixels (toward the epipole) the others
+    would add rows of their own for little, and the nearest slice is there
+    well within half a pixel.  So a sample one of whose neighbours is
+    nobody's nearest, or within ``SNAP`` of a slice, takes its nearest
+    slice's answer alone (weight 1).  Such a *lone* sample (not snapped)
+    also asks the used slice on its far side, with weight 0, so that
+    :func:`disagreeing_samples` sees a shadow edge passing between the
+    sample and its nearest slice (the beam's edge 0.05 px from a pixel
+    centre at 24×18, where the nearest slice was lit and the pixel centre's
+    ray is not)."""
+    a = dr.gather(mi.Float, alpha, idx)
+    k0, k1, f = alpha_to_slice(slices, a)
+    nearest = dr.select(f < 0.5, k0, k1)
     used = dr.zeros(mi.Bool, slices.count)
-    dr.scatter(used, True, dr.select(f < 0.5, k0, k1))
+    dr.scatter(used, True, nearest)
     both = dr.gather(mi.Bool, used, k0) & dr.gather(mi.Bool, used, k1)
     f = dr.select(both, f, dr.select(f < 0.5, 0.0, 1.0))
     f = dr.select(f < SNAP, 0.0, dr.select(f > 1.0 - SNAP, 1.0, f))
     first = f < 1.0                      # k0 takes a share
     second = f > 0.0                     # k1 takes a share
     i0, i1 = dr.compress(first), dr.compress(second)
-    sample = _concat([dr.gather(mi.UInt32, idx, i0), dr.gather(mi.UInt32, idx, i1)])
-    k = _concat([dr.gather(mi.UInt32, k0, i0), dr.gather(mi.UInt32, k1, i1)])
-    weight = _concat([dr.gather(mi.Float, 1.0 - f, i0), dr.gather(mi.Float, f, i1)])
+    parts = [(i0, dr.gather(mi.UInt32, k0, i0), dr.gather(mi.Float, 1.0 - f, i0)),
+             (i1, dr.gather(mi.UInt32, k1, i1), dr.gather(mi.Float, f, i1))]
+    used_idx = dr.compress(used)
+    if dr.width(used_idx) >= 2:
+        u = np.asarray(used_idx, np.int64)
+        sub = Slices(slices.alpha[u], slices.points[u], slices.wraps, "custom")
+        j0, j1, fu = alpha_to_slice(sub, a)
+        u0, u1 = dr.gather(mi.UInt32, used_idx, j0), dr.gather(mi.UInt32, used_idx, j1)
+        far = dr.select(u0 == nearest, u1, u0)
+        ip = dr.compress(~both & (far != nearest) & (fu > SNAP) & (fu < 1.0 - SNAP))
+        parts.append((ip, dr.gather(mi.UInt32, far, ip), dr.zeros(mi.Float, dr.width(ip))))
+    sample = _concat([dr.gather(mi.UInt32, idx, i) for i, _, _ in parts])
+    k = _concat([kk for _, kk, _ in parts])
+    weight = _concat([w for _, _, w in parts])
     return sample, k, weight
 
 

@@ -595,10 +595,12 @@ def test_light_side_factor_times_reference_is_bounded():
 @pytest.mark.parametrize("light", [None, "on_screen"])
 def test_slice_interpolation_shares_each_sample_between_its_neighbours(light):
     """interpolate=True: every non-ring sample's queries have weights summing
-    to 1; a sample with two queries has them in the two slices around its α
-    and reproduces α by their weighted mean (the lerp); one with a single
-    query (a neighbour nobody's nearest, or within SNAP of a slice) has it
-    in its nearest slice; each row is still sorted by β."""
+    to 1; a sample with two weighted queries has them in the two slices
+    around its α and reproduces α by their weighted mean (the lerp); a lone
+    sample (a neighbour nobody's nearest) has weight 1 in its nearest slice
+    and a weight-0 query in the used slice (some sample's nearest) on its
+    other side, for the disagreement test; one within SNAP of a slice has a
+    single query, in its nearest slice; each row is still sorted by β."""
     scene = mi.load_dict(scene_dict(res=RES, **({"light": on_screen_light()} if light else {})))
     params = SceneParams.from_scene(scene)
     cap = capture_camera(params, surface=False)
@@ -612,18 +614,32 @@ def test_slice_interpolation_shares_each_sample_between_its_neighbours(light):
     assert set(sample) == set(np.array(nearest.sample))
     total = np.bincount(sample, w, len(alpha_s))
     np.testing.assert_allclose(total[np.array(nearest.sample)], 1.0, atol=1e-6)
-    # weighted mean of the slices' α (unwrapped around the sample's own α)
+    # slices' α relative to the sample's own (unwrapped around it)
     d = np.angle(np.exp(1j * (a_q - alpha_s[sample])))
     counts = np.bincount(sample, minlength=len(alpha_s))
     assert counts.max() == 2 and 0.5 < np.mean(counts[counts > 0] == 2)
-    pairs = np.flatnonzero(counts == 2)
+    lone_q = (w == 0.0)
+    lone = np.zeros(len(alpha_s), bool)
+    lone[sample[lone_q]] = True
+    assert lone.any()
+    pairs = np.flatnonzero((counts == 2) & ~lone)
     mean_offset = np.bincount(sample, w * d, len(alpha_s))[pairs]
     spacing = np.max(np.abs(np.diff(np.asarray(sl.alpha))))
     assert np.max(np.abs(mean_offset)) < 1e-3 * spacing + 1e-6
-    assert np.max(np.abs(d)) <= spacing * (1 + 1e-4)
+    assert np.max(np.abs(d[~lone_q])) <= spacing * (1 + 1e-4)
+    # every pair brackets its sample: a slice on each side
+    lo = np.full(len(alpha_s), np.inf)
+    hi = np.full(len(alpha_s), -np.inf)
+    np.minimum.at(lo, sample, d)
+    np.maximum.at(hi, sample, d)
+    both = np.flatnonzero(counts == 2)
+    assert np.all(lo[both] <= 1e-6) and np.all(hi[both] >= -1e-6)
+    # the weight-1 query of a lone or single sample is in its nearest slice;
+    # a lone sample's weight-0 query in a used slice
     near_alpha = dict(zip(np.array(nearest.sample), np.array(nearest.alpha)[np.array(nearest.row)]))
-    single = counts[sample] == 1
-    np.testing.assert_array_equal(a_q[single], [near_alpha[i] for i in sample[single]])
+    whole = w == 1.0
+    np.testing.assert_array_equal(a_q[whole], [near_alpha[i] for i in sample[whole]])
+    assert np.all(np.isin(a_q[lone_q], np.array(nearest.alpha)))
     rows, beta = np.array(q.row), np.array(q.beta)
     order = np.lexsort((np.array(q.col), rows))
     assert np.all(np.diff(rows[order]) >= 0)
