@@ -84,7 +84,10 @@ def _kind_settings(kind: str, steps: int | None) -> dict:
     if kind == "exact":
         return {"integrator": "raymarch", "visibility": "exact",
                 "steps": int(steps or DEFAULT_EXACT_STEPS),
-                "boundary_bisections": EXACT_BISECTIONS}
+                "boundary_bisections": EXACT_BISECTIONS,
+                # lit rises confirmed by a shifted shadow ray (mesh cracks,
+                # light_transport.visible_confirmed): references cached before differ
+                "crack_confirmation": 1}
     raise ValueError(f"Reference kind '{kind}' is not one of {list(KINDS)}.")
 
 
