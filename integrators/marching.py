@@ -239,8 +239,7 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
         """``lit_t`` at t, a rise from ``before`` confirmed by the shifted ray."""
         rise = lit_t & ~before
         pt = point_terms(params, cap, dr.minimum(t, t_test_max), rise)
-        return lit_t & (~rise | visible_shifted(params, pt.x, pt.wo, pt.dist, pt.t_in,
-                                                pt.t_out, rise))
+        return lit_t & (~rise | visible_shifted(params, pt.x, pt.wo, pt.dist, rise))
 
     def crossing(lo, hi, lit_lo, active):
         """The t in [lo, hi] where ℓ changes (it is ``lit_lo`` at lo)."""
