@@ -45,7 +45,7 @@ def midpoint_2048(scene):
     return image(scene, EXACT, {"visibility": "exact", "steps": 2048})
 
 
-def midpoint_row(name, scene, ref):
+def midpoint_row(name, scene):
     ref = midpoint_2048(scene)
     fine = {st: image(scene, EXACT, {"visibility": "exact", "steps": st}) for st in (4096, 8192)}
     r, m = relmse(ref, fine[8192])
@@ -53,7 +53,7 @@ def midpoint_row(name, scene, ref):
             "relmse_4096_vs_8192": relmse(fine[4096], fine[8192])[0]}
 
 
-def bisected_row(name, scene, ref):
+def bisected_row(name, scene):
     ref = midpoint_2048(scene)
     conv = image(scene, EXACT, {"visibility": "exact", "steps": 1024, "boundary_bisections": 12})
     out = {"against": "raymarch exact steps=1024 boundary_bisections=12"}
@@ -72,7 +72,7 @@ def timed_image(scene, props):
     return np.asarray(r["image"]), r["time_s"]
 
 
-def bisected_convergence_row(name, scene, ref):
+def bisected_convergence_row(name, scene):
     from episcatter.reference import exact_props
 
     fine, t_fine = timed_image(scene, {"visibility": "exact", "steps": 4096,
@@ -97,10 +97,10 @@ def main(argv=None):
     row = (bisected_convergence_row if a.bisected_convergence
            else bisected_row if a.against_bisected else midpoint_row)
     for name in a.scenes.split(","):
-        s = {"width": a.width, "height": a.height, "reference_steps": c.REFERENCE_STEPS}
-        scene, ref, _ = c.scene_with_reference(name, s, False)
+        # every row renders the images it compares: no cached reference needed
+        scene = c.load(c.scene_file(name), c.resolution(a.width, a.height))
         print(json.dumps({"scene": name, "size": [a.width, a.height],
-                          **row(name, scene, np.asarray(ref))}), flush=True)
+                          **row(name, scene)}), flush=True)
 
 
 if __name__ == "__main__":

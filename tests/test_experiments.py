@@ -179,3 +179,17 @@ def test_size_option_replaces_an_experiments_image_size(tmp_path):
         c.sized({"sizes": []}, "64x48")
     run = c.start_run(tg, ["--size", "40x30", "--out", str(tmp_path)], tg.SCENES, tg.QUICK_SCENES)
     assert (run.settings["width"], run.settings["height"]) == (40, 30)
+
+
+def test_reference_convergence_runs_without_a_cached_reference(capsys, tmp_path, monkeypatch):
+    """experiments.reference_convergence renders what it compares (it used to
+    make the suite's cached reference first, which no row read)."""
+    import json
+
+    from experiments import reference_convergence as rc
+
+    monkeypatch.setenv("EPISCATTER_CACHE", str(tmp_path))
+    rc.main(["8", "6", "beam", "--bisected-convergence"])
+    row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert row["relmse_bisected_2048x12"] < row["relmse_midpoint_2048"]
+    assert not any(tmp_path.iterdir())
