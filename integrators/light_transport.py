@@ -203,7 +203,7 @@ def visible_shifted(params, x, wo, dist, active=True):
     return seen | (other & clear(x - shift, other))
 
 
-def visible_confirmed(params, x, wo, dist, t_in, t_out, active=True):
+def visible_confirmed(params, x, wo, dist, t_in, t_out, active=True, confirm=True):
     """:func:`visible_exact`, with each lit verdict confirmed by a second
     shadow ray shifted sideways (:func:`visible_shifted`; where a shadow
     edge lies within the shift, the ray shifted the other way).  A ray
@@ -212,9 +212,12 @@ def visible_confirmed(params, x, wo, dist, t_in, t_out, active=True):
     then lit one pixel of the working reference (issue 13, random seeds 208,
     263 and 274, where the shadow ray ran along a face's diagonal).  Such a
     crack is a set of measure zero: both shifted rays miss it, while a point
-    that is truly lit has a lit ray on at least one side."""
+    that is truly lit has a lit ray on at least one side.  ``confirm``: the
+    lanes whose lit verdict is confirmed (the others keep
+    :func:`visible_exact`'s)."""
     lit = visible_exact(params, x, wo, dist, t_in, t_out, active)
-    return lit & visible_shifted(params, x, wo, dist, mi.Bool(active) & lit)
+    ask = mi.Bool(active) & lit & confirm
+    return lit & (~ask | visible_shifted(params, x, wo, dist, ask))
 
 
 def phase_eval(params, omega, wo, x=None):

@@ -19,7 +19,7 @@ import numpy as np
 from .capture import sample_rng, seed_offset
 from .light_transport import (color, light_transmittance, phase_eval, sample_light,
                               segment_box, segment_weight, visible_confirmed,
-                              visible_exact, visible_shifted)
+                              visible_exact)
 
 
 def auto_spacing(params) -> str:
@@ -225,27 +225,22 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     t_test_max = dr.minimum(t_last - END_NUDGE * (t_last - t_first) / steps,
                             t_last * (1.0 - 1e-5))
 
-    def lit(t, active=True, confirm=False):
-        """ℓ(t); ``confirm``: a lit verdict is confirmed by a shifted shadow
-        ray (:func:`visible_confirmed`), which is asked where ℓ rises from
-        one test point to the next and inside the bisections -- the only
-        places where a ray slipping through a mesh crack adds light."""
+    def lit(t, active=True, before=False):
+        """ℓ(t), a lit verdict where ℓ was not lit ``before`` (at the previous
+        test point; False: always) confirmed by a shifted shadow ray
+        (:func:`visible_confirmed`): where ℓ rises and inside the bisections
+        are the only places where a ray slipping through a mesh crack adds
+        light."""
         pt = point_terms(params, cap, dr.minimum(t, t_test_max), active)
-        check = visible_confirmed if confirm else visible_exact
-        seen = check(params, pt.x, pt.wo, pt.dist, pt.t_in, pt.t_out, active)
+        seen = visible_confirmed(params, pt.x, pt.wo, pt.dist, pt.t_in, pt.t_out, active,
+                                 confirm=~mi.Bool(before))
         return seen & (dr.max(pt.L_light) > 0.0)
-
-    def confirmed(t, lit_t, before):
-        """``lit_t`` at t, a rise from ``before`` confirmed by the shifted ray."""
-        rise = lit_t & ~before
-        pt = point_terms(params, cap, dr.minimum(t, t_test_max), rise)
-        return lit_t & (~rise | visible_shifted(params, pt.x, pt.wo, pt.dist, rise))
 
     def crossing(lo, hi, lit_lo, active):
         """The t in [lo, hi] where ℓ changes (it is ``lit_lo`` at lo)."""
         def body(i, lo, hi):
             m = 0.5 * (lo + hi)
-            same = lit(m, active, confirm=True) == lit_lo
+            same = lit(m, active) == lit_lo
             return i + 1, dr.select(same, m, lo), dr.select(same, hi, m)
         _, lo, hi = dr.while_loop(state=(mi.UInt32(0), lo, hi),
                                   cond=lambda i, lo, hi: active & (i < n_bis), body=body)
@@ -267,13 +262,13 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
         s = mi.Float(k)
         a, b = t_of(s), t_of(s + 1)
         m = 0.5 * (a + b)
-        lit_m = confirmed(m, lit(m), lit_a)
-        lit_b = confirmed(b, lit(b), lit_m)
+        lit_m = lit(m, before=lit_a)
+        lit_b = lit(b, before=lit_m)
         L += half(a, m, lit_a, lit_m) + half(m, b, lit_m, lit_b)
         return k + 1, L, lit_b
 
     _, L, _ = dr.while_loop(
-        state=(mi.UInt32(0), dr.zeros(mi.Color3f, n), lit(t_first, confirm=True)),
+        state=(mi.UInt32(0), dr.zeros(mi.Color3f, n), lit(t_first)),
         cond=lambda k, L, lit_a: k < n_steps,
         body=body,
     )
