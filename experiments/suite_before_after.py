@@ -7,10 +7,12 @@ Each scene is measured by two processes in turn, one per source tree
 tree), each importing its own ``integrators``: a warm-up render, then
 ``--repeats`` timed renders (median), 1 spp at the **pixel centres**, against
 the cached exact working reference (raymarch visibility=exact, 2048 steps,
-:func:`experiments.common.scene_with_reference`; both trees read the same
-file).  Errors: scale-free relMSE (eps 1e-2·mean(ref)²), mean ratio, max
-|error| / reference peak, HDR-FLIP, of the full image.  The order of the
-two processes alternates from scene to scene.
+12 boundary bisections, :func:`experiments.common.scene_with_reference`)
+of *this* tree: each process saves its image and the parent judges both,
+so an old tree's reference code does not enter.  Errors: scale-free
+relMSE (eps 1e-2·mean(ref)²), mean ratio, max |error| / reference peak,
+HDR-FLIP, of the full image.  The order of the two processes alternates
+from scene to scene.
 
 ``python -m experiments.suite_before_after --before /work/wt/h13-main
 [--scenes ...] [--method fourier_filter] [--size 320x240] [--out results/stability]``
@@ -30,31 +32,53 @@ WIDTH, HEIGHT = 640, 480
 
 
 def measure(scene_name: str, repeats: int, method: str = "epipolar_tree",
-            width: int = WIDTH, height: int = HEIGHT) -> dict:
-    """This process's tree: errors and median times of ``method`` at its
-    defaults on one suite scene."""
+            width: int = WIDTH, height: int = HEIGHT, image_out: str | None = None) -> dict:
+    """This process's tree: median times of ``method`` at its defaults on one
+    suite scene, 1 spp; the image is saved to ``image_out`` (``.npy``) so
+    that the parent judges both trees against one reference."""
+    import numpy as np
+    from experiments import common as c
+
+    scene = c.load(c.scene_file(scene_name), c.resolution(width, height))
+    t = c.time_renders(scene, {"m": c.build(method, {})}, repeats=repeats, spp=1)["m"]
+    if image_out:
+        np.save(image_out, np.asarray(t["image"], dtype=np.float32))
+    return {"scene": scene_name, "time_s": t["time_s"], "scattering_s": t["scattering_s"],
+            "load": c.load_average()}
+
+
+def judged(scene_name: str, image, width: int, height: int) -> dict:
+    """Errors of ``image`` against this tree's cached exact working reference
+    (:func:`experiments.common.scene_with_reference`)."""
     from experiments import common as c
 
     s = {"width": width, "height": height, "reference_steps": c.REFERENCE_STEPS}
-    scene, ref, _ = c.scene_with_reference(scene_name, s, False)
-    t = c.time_renders(scene, {"m": c.build(method, {})}, repeats=repeats)["m"]
-    e = c.errors(t["image"], ref, blocks=(1,))
-    return {"scene": scene_name, "relmse": e["relmse_b1"], "mean_ratio": e["mean_ratio_b1"],
-            "max_err_over_peak": e["max_error_over_peak_b1"], "flip": e["flip_b1"],
-            "time_s": t["time_s"], "scattering_s": t["scattering_s"],
-            "load": c.load_average()}
+    _, ref, _ = c.scene_with_reference(scene_name, s, False)
+    e = c.errors(image, ref, blocks=(1,))
+    return {"relmse": e["relmse_b1"], "mean_ratio": e["mean_ratio_b1"],
+            "max_err_over_peak": e["max_error_over_peak_b1"], "flip": e["flip_b1"]}
 
 
 def run_tree(tree: str, scene: str, repeats: int, method: str = "epipolar_tree",
              size: str = f"{WIDTH}x{HEIGHT}") -> dict:
     """:func:`measure` in a subprocess importing ``tree``'s packages (this
-    file run with ``--measure`` from ``tree``)."""
-    env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
-    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure", scene,
-                          "--repeats", str(repeats), "--method", method, "--size", size],
-                         cwd=tree, env=env, capture_output=True, text=True, check=True).stdout
+    file run with ``--measure`` from ``tree``); its image is judged here,
+    against this tree's reference, so both trees meet the same one."""
+    import tempfile
+
+    import numpy as np
+
+    with tempfile.TemporaryDirectory() as tmp:
+        image_out = str(Path(tmp) / "image.npy")
+        env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
+        out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure", scene,
+                              "--repeats", str(repeats), "--method", method, "--size", size,
+                              "--image-out", image_out],
+                             cwd=tree, env=env, capture_output=True, text=True, check=True).stdout
+        image = np.load(image_out)
     line = [x for x in out.splitlines() if x.startswith("RESULT ")][-1]
-    return json.loads(line[len("RESULT "):])
+    width, height = (int(x) for x in size.lower().split("x"))
+    return {**json.loads(line[len("RESULT "):]), **judged(scene, image, width, height)}
 
 
 def table(rows: list[dict]) -> str:
@@ -80,6 +104,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--before", help="source tree of the 'before' version")
     p.add_argument("--measure", metavar="SCENE", help=argparse.SUPPRESS)
+    p.add_argument("--image-out", help=argparse.SUPPRESS)
     p.add_argument("--after", default=str(Path(__file__).resolve().parents[1]),
                    help="source tree of the 'after' version (default: this one)")
     p.add_argument("--scenes", nargs="+", default=SUITE)
@@ -91,7 +116,7 @@ def main(argv=None):
     width, height = (int(x) for x in args.size.lower().split("x"))
     if args.measure:
         print("RESULT " + json.dumps(measure(args.measure, args.repeats, args.method, width,
-                                             height)), flush=True)
+                                             height, args.image_out)), flush=True)
         return
     if not args.before:
         p.error("--before TREE is required")
@@ -108,8 +133,9 @@ def main(argv=None):
     (out / "suite_before_after.json").write_text(json.dumps(rows, indent=1))
     text = "\n\n".join([
         f"# {args.method} at its defaults on the suite, before and after",
-        f"{width}x{height}, 1 spp at **pixel centres**, against the exact working reference "
-        "(raymarch visibility=exact, 2048 steps, cached). Scale-free relMSE (eps 1e-2 x "
+        f"{width}x{height}, 1 spp at **pixel centres**, both versions against the after tree's "
+        "exact working reference (raymarch visibility=exact, 2048 steps, 12 boundary "
+        "bisections, crack confirmation; cached). Scale-free relMSE (eps 1e-2 x "
         "mean(ref)^2), mean ratio, max |error| / reference peak, HDR-FLIP; end-to-end and "
         f"scattering time: median of {args.repeats} warm runs, OPENBLAS_NUM_THREADS=1, the two "
         "versions in alternating processes per scene (experiments.suite_before_after). "
