@@ -140,6 +140,11 @@ def probe_pixels(width: int, height: int, target: int = PROBE_PIXELS) -> np.ndar
     return (ys * width + xs).ravel()
 
 
+def settings_key(settings: dict) -> tuple:
+    """A hashable key of a settings dict (its items, sorted)."""
+    return tuple(sorted(settings.items()))
+
+
 def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
     """DESIGN §2's scale-free relMSE of two (pixels, 3) arrays."""
     floor = eps * float(np.mean(ref)) ** 2
@@ -153,13 +158,15 @@ class Probe:
     """The probe of one scene (module doc): renders settings of a method at
     one sample per pixel centre and measures them on :func:`probe_pixels`
     against the exact marcher on those pixels (``pixels``, ``steps``:
-    :data:`PROBE_PIXELS`, :data:`REFERENCE_STEPS` unless given)."""
+    :data:`PROBE_PIXELS`, :data:`REFERENCE_STEPS` unless given).  Its
+    full-image renders are kept (:attr:`kept`, by settings) so that a
+    render asking for one of them again reuses it (:func:`render_auto`)."""
 
     def __init__(self, scene, sensor, method: str, base: dict, pixels: int | None = None,
-                 steps: int | None = None):
+                 steps: int | None = None, seed=0):
         import mitsuba as mi
 
-        self.scene, self.sensor, self.method = scene, sensor, method
+        self.scene, self.sensor, self.method, self.seed = scene, sensor, method, seed
         #: one sample per pixel centre, the full image, whatever the render asks
         self.base = {k: v for k, v in base.items()
                      if k not in ("samples_per_pixel", "jitter_pixels", "output")}
@@ -172,12 +179,20 @@ class Probe:
                             "steps": steps or REFERENCE_STEPS})
         self.reference = self.values(ref, partial=True)
         self.errors = []
+        #: settings key -> RenderResult of each full-image probe render
+        self.kept = {}
 
-    def values(self, integrator, partial=False) -> np.ndarray:
-        """The output layer of ``integrator`` on the probe pixels (a partial
-        render of them where the method marches samples alone)."""
+    def render(self, integrator, partial=False):
+        """RenderResult of ``integrator`` at one sample per pixel centre (a
+        partial render of the probe pixels where the method marches
+        samples alone)."""
         kw = {"samples": self.mask} if partial else {}
-        res = integrator.render_layers(self.scene, self.sensor, spp=1, **kw)
+        return integrator.render_layers(self.scene, self.sensor, seed=self.seed, spp=1, **kw)
+
+    def values(self, integrator, partial=False, result=None) -> np.ndarray:
+        """The output layer of ``integrator`` (or of its ``result``) on the
+        probe pixels."""
+        res = result if result is not None else self.render(integrator, partial)
         img = np.asarray(res[integrator.output], np.float64)
         return img.reshape(-1, img.shape[-1])[self.pixels]
 
@@ -186,7 +201,10 @@ class Probe:
         import mitsuba as mi
 
         integ = mi.load_dict({"type": self.method, **self.base, **settings})
-        e = subset_relmse(self.values(integ, partial), self.reference)
+        res = self.render(integ, partial)
+        if not partial:
+            self.kept[settings_key(settings)] = res
+        e = subset_relmse(self.values(integ, result=res), self.reference)
         self.errors.append({**settings, "relmse": e})
         return e
 
@@ -277,7 +295,11 @@ def light_rays_of(density: float, diagonal: float) -> int:
 
 def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     """Slice spacing and light rays of the tree (module doc)."""
-    e1, e2 = (probe.error(p) for p in probe_settings("epipolar_tree", probe.diagonal))
+    first, second = probe_settings("epipolar_tree", probe.diagonal)
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first                  # the cheaper probe already meets it: its render is kept
+    e2 = probe.error(second)
     s, r = tree_choice(e1, e2, budget, fit)
     return {"slice_spacing": s, "light_rays": light_rays_of(r, probe.diagonal)}
 
@@ -311,8 +333,11 @@ def filter_settings(e1: float, e2: float, budget: float, fit=None) -> dict:
 
 def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     """Coefficients and weights of the filter (module doc)."""
-    e1, e2 = (probe.error(p) for p in probe_settings("fourier_filter", probe.diagonal))
-    return filter_settings(e1, e2, budget, fit)
+    first, second = probe_settings("fourier_filter", probe.diagonal)
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first                  # the cheaper probe already meets it: its render is kept
+    return filter_settings(e1, probe.error(second), budget, fit)
 
 
 def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
@@ -332,8 +357,11 @@ def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
 
 def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
     """Initial step of the min/max method (module doc)."""
-    e1, e2 = (probe.error(p) for p in probe_settings("minmax_epipolar", probe.diagonal))
-    return {"initial_step": minmax_step(e1, e2, budget, fit)}
+    first, second = probe_settings("minmax_epipolar", probe.diagonal)
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first                  # the cheaper probe already meets it: its render is kept
+    return {"initial_step": minmax_step(e1, probe.error(second), budget, fit)}
 
 
 #: method -> the knobs its rule chooses and the rule (probe, budget) -> settings
@@ -346,30 +374,57 @@ RULES = {
 }
 
 
-def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0):
+def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0, seed=0):
     """(settings, stats) of ``method`` for ``budget`` on ``scene``: the
     rule's choice and what the probe measured (its errors, its time)."""
+    settings, stats, _ = probe_and_choose(scene, method, budget, base, sensor, seed)
+    return settings, stats
+
+
+def probe_and_choose(scene, method: str, budget: float, base: dict | None = None, sensor=0,
+                     seed=0):
+    """:func:`choose`, and the :class:`Probe` (with its kept renders)."""
     if method not in RULES:
         raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
     if not (isinstance(budget, (int, float)) and budget > 0):
         raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
     t0 = time.perf_counter()
-    probe = Probe(scene, sensor, method, base or {})
+    probe = Probe(scene, sensor, method, base or {}, seed=seed)
     settings = RULES[method]["choose"](probe, float(budget))
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
-                      "auto_probe_pixels": int(len(probe.pixels))}
+                      "auto_probe_pixels": int(len(probe.pixels))}, probe
+
+
+def kept_render(probe: Probe, inner, scene, sensor, spp, settings: dict, partial_args: dict):
+    """The probe's render of ``settings`` if it is the render ``inner``
+    is asked for (the whole frame, one sample per pixel centre, output
+    ``full``, the probe's seed), else None."""
+    if any(v is not None for v in partial_args.values()):
+        return None
+    n = inner.sample_count(scene, sensor, spp)
+    if n != 1 or inner.jitters(n) or inner.output != "full":
+        return None
+    return probe.kept.get(settings_key(settings))
 
 
 def render_auto(integrator, scene, sensor=0, seed=0, spp=0, **kw):
     """``render_layers`` of an auto integrator: choose (:func:`choose`),
-    then render with an integrator built with the chosen settings; its
-    result with the choice in ``stats`` and the probe in ``timings``."""
+    then render with an integrator built with the chosen settings -- or,
+    where the choice is a setting the probe rendered in full as asked
+    (:func:`kept_render`), that render, which is the same image; its
+    result with the choice in ``stats`` (``auto_reused``) and the probe in
+    ``timings``.  ``seed``: a Python int (the template's
+    :func:`~integrators.template.scalar_seed`)."""
     import mitsuba as mi
 
     base = dict(integrator.explicit_properties)
-    settings, stats = choose(scene, integrator.method_name, integrator.error_budget, base, sensor)
+    settings, stats, probe = probe_and_choose(scene, integrator.method_name,
+                                              integrator.error_budget, base, sensor, int(seed))
     inner = mi.load_dict({"type": integrator.method_name, **base, **settings})
-    result = inner.render_layers(scene, sensor, seed, spp, **kw)
+    result = kept_render(probe, inner, scene, sensor, spp, settings, kw)
+    reused = result is not None
+    if not reused:
+        result = inner.render_layers(scene, sensor, seed, spp, **kw)
     return replace(result, timings={**result.timings, "probe": stats["auto_probe_s"]},
                    stats={**result.stats, **stats, "auto_settings": settings,
-                          "error_budget": integrator.error_budget})
+                          "auto_reused": reused, "error_budget": integrator.error_budget})

@@ -492,8 +492,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         method checks it still fits before it uses it)."""
         variant = check_variant()
         if self.quality == "auto":
-            return quality_auto.render_auto(self, scene, sensor, seed, spp, samples=samples,
-                                            moved=moved, known=known, frame_state=frame_state)
+            return quality_auto.render_auto(self, scene, sensor, scalar_seed(seed), spp,
+                                            samples=samples, moved=moved, known=known,
+                                            frame_state=frame_state)
         if known is not None and samples is None:
             raise ValueError("known: a capture to complete needs the samples= mask of the "
                              "samples to capture anew.")
