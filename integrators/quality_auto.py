@@ -47,11 +47,18 @@ to meet ``SAFETY * error_budget`` (the most accurate one when none is).
   suite's frontier runs have no minmax sweep to fit it on); the largest
   candidate step predicted to meet the target.
 
+Where a probe renders the whole image (tree, filter, minmax), it renders
+its cheaper setting first and stops there when that setting's error
+already meets the target: the rule returns it, and the render reuses the
+probe's own render of it (:func:`kept_render`) when that is the render
+asked for (the whole frame, one sample per pixel centre, output ``full``,
+the same seed).
+
 The chosen settings, the probe's errors and its time go into the render's
 ``RenderResult.stats`` (``auto_settings``, ``auto_probe``,
-``auto_probe_s``) and ``timings["probe"]``; the render itself is that of
-an integrator built with the chosen settings, so it equals an explicit
-render with them.
+``auto_probe_s``, ``auto_reused``) and ``timings["probe"]``; the render
+itself is that of an integrator built with the chosen settings (or the
+probe's render of them), so it equals an explicit render with them.
 """
 from __future__ import annotations
 
