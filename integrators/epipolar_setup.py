@@ -107,7 +107,7 @@ from .capture import CameraCapture, sample_rng, seed_offset
 from .light_transport import (slabs, color, first_blocker, phase_eval, point,
                               sample_light, segment_box, segment_weight, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
-from .marching import lit_spacing, march
+from .marching import lit_spacing, march, march_bisected
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5
@@ -1325,27 +1325,45 @@ def gather_queries(queries: EpipolarQueries, result: mi.TensorXf) -> mi.Color3f:
 PEAK_STEP_FACTOR = 8
 
 
-def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int) -> mi.Color3f:
-    """Brute-force L_scat of the ring samples (§6): raymarch with exact,
-    ray-traced visibility.  For a point or spot light, the samples whose
-    view ray passes within one pixel's angle of the light (a light on or
-    next to a pixel centre: the 1/r² peak is steep there, and such a pixel
-    can hold much of the image's energy) take ``PEAK_STEP_FACTOR`` × the
-    steps; they are a handful, the rest of the ring keeps ``steps``."""
-    ring = cap.subset(queries.ring_sample)
+#: default bisections of the ring's and re-marched samples' shadow and cone
+#: edges (``ring_bisections``; :func:`brute_force`)
+RING_BISECTIONS = 8
+
+
+def brute_force(params, cap: CameraCapture, steps: int, bisections: int = 0) -> mi.Color3f:
+    """L_scat of every sample of ``cap`` by the exact marcher the ring and
+    the re-marched samples use: ``steps`` segments (the light's spacing)
+    with ray-traced visibility, their shadow and cone edges located by
+    ``bisections`` bisections (:func:`~integrators.marching.march_bisected`;
+    0: the midpoint rule of :func:`~integrators.marching.march`).  The
+    re-marched samples sit on shaft edges by construction, where the
+    midpoint rule's error is of one segment over the lit length."""
     spacing = lit_spacing(params)
+    if bisections:
+        return march_bisected(params, cap, steps, bisections, spacing=spacing)
+    return march(params, cap, steps, shadow_map=None, spacing=spacing)
+
+
+def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int,
+               bisections: int = 0) -> mi.Color3f:
+    """Brute-force L_scat of the ring samples (§6): :func:`brute_force`.
+    For a point or spot light, the samples whose view ray passes within
+    one pixel's angle of the light (a light on or next to a pixel centre:
+    the 1/r² peak is steep there, and such a pixel can hold much of the
+    image's energy) take ``PEAK_STEP_FACTOR`` × the steps; they are a
+    handful, the rest of the ring keeps ``steps``."""
+    ring = cap.subset(queries.ring_sample)
     if params.light.kind == "directional" or not dr.width(queries.ring_sample):
-        return march(params, ring, steps, shadow_map=None, spacing=spacing)
+        return brute_force(params, ring, steps, bisections)
     cam = params.camera
     pixel = 2.0 * max(float(np.linalg.norm(cam.x_axis)) / cam.width,
                       float(np.linalg.norm(cam.y_axis)) / cam.height)
     beta = direction_to_alpha_beta(queries.frame, ring.omega)[1]
     peak = dr.minimum(beta, math.pi - beta) < pixel
-    out = march(params, ring, steps, shadow_map=None, spacing=spacing)
+    out = brute_force(params, ring, steps, bisections)
     near = dr.compress(peak)
     if dr.width(near):
-        fine = march(params, ring.subset(near), PEAK_STEP_FACTOR * steps, shadow_map=None,
-                     spacing=spacing)
+        fine = brute_force(params, ring.subset(near), PEAK_STEP_FACTOR * steps, bisections)
         dr.scatter(out, fine, near)
     return out
 
@@ -1388,15 +1406,14 @@ def union_samples(n: int, *parts: mi.UInt32) -> mi.UInt32:
 
 
 def remarch_samples(params, cap: CameraCapture, queries: EpipolarQueries, values,
-                    samples: mi.UInt32, steps: int):
+                    samples: mi.UInt32, steps: int, bisections: int = 0):
     """``values`` with the queries of camera ``samples`` replaced by the
-    brute-force L_scat of their ray (the ring's marcher, exact visibility):
-    both queries of such a sample then carry it, so their weighted sum is
-    the marched value."""
+    brute-force L_scat of their ray (the ring's marcher,
+    :func:`brute_force`): both queries of such a sample then carry it, so
+    their weighted sum is the marched value."""
     if not dr.width(samples):
         return values
-    marched = march(params, cap.subset(samples), steps, shadow_map=None,
-                    spacing=lit_spacing(params))
+    marched = brute_force(params, cap.subset(samples), steps, bisections)
     fixed = dr.zeros(mi.Bool, queries.n_samples)
     dr.scatter(fixed, True, samples)
     per_sample = dr.zeros(mi.Color3f, queries.n_samples)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .epipolar_setup import (assign_queries, choose_slices, disagreeing_samples,
+from .epipolar_setup import (RING_BISECTIONS, assign_queries, choose_slices, disagreeing_samples,
                              epipolar_frame_of, march_ring, remarch_samples, to_samples,
                              union_samples)
 from .epipolar_local_light import cone_samples, resolve_lit_cone
@@ -57,6 +57,8 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                                          maximum=1.0)
         self.ring_degrees = read_number(props, "ring_degrees", 2.0, minimum=0.0, maximum=90.0)
         self.ring_steps = read_number(props, "ring_steps", 256, minimum=1, integer=True)
+        self.ring_bisections = read_number(props, "ring_bisections", RING_BISECTIONS,
+                                           minimum=0, maximum=24, integer=True)
         self.shadowmap_resolution = read_number(props, "shadowmap_resolution", 2048,
                                                 minimum=1, maximum=32768, integer=True)
         self.slice_interpolation = read_bool(props, "slice_interpolation",
@@ -182,7 +184,8 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         with self.stage("ring") as keep:
             if dr.width(queries.ring_sample):
                 parts.append((queries.ring_sample,
-                              march_ring(params, cap, queries, self.ring_steps)))
+                              march_ring(params, cap, queries, self.ring_steps,
+                                         self.ring_bisections)))
                 keep.append(parts[-1][1])
         return to_samples(queries, parts)
 
@@ -209,6 +212,7 @@ class EpipolarIntegrator(EpiscatterIntegrator):
             # with the samples the method asked for (RenderRecord.march)
             asked, self.render_record.march = self.render_record.march, []
             remarch = union_samples(queries.n_samples, remarch, *asked)
-            values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps)
+            values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps,
+                                     self.ring_bisections)
             keep.append(values)
         return values
