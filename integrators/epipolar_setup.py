@@ -1327,7 +1327,7 @@ PEAK_STEP_FACTOR = 8
 
 #: default bisections of the ring's and re-marched samples' shadow and cone
 #: edges (``ring_bisections``; :func:`brute_force`)
-RING_BISECTIONS = 8
+RING_BISECTIONS = 4
 
 
 def brute_force(params, cap: CameraCapture, steps: int, bisections: int = 0) -> mi.Color3f:

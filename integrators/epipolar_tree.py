@@ -137,7 +137,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     ``ring_steps``             ray-marching segments in the ring (default 256)
     ``ring_bisections``        bisections of the shadow/cone edges on the
                                ring's and re-marched samples' segments
-                               (default 8; 0: midpoint rule)
+                               (default 4; 0: midpoint rule)
     ``prefilter``              sub-rays k per light ray for the depth modes
                                of §7 (default 4; 1 = off, one ray through
                                the light ray's centre)

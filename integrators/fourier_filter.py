@@ -263,7 +263,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     ``ring_steps``             ray-marching segments in the ring (256)
     ``ring_bisections``        bisections of the shadow/cone edges on the
                                ring's and re-marched samples' segments
-                               (default 8; 0: midpoint rule)
+                               (default 4; 0: midpoint rule)
     ``svd_rank``,              separated kernel: rank (0: automatic) and
     ``svd_tolerance``          relative L2 tolerance (1e-3)
     ``rectification``          ``auto`` (default): ``projective`` for a
