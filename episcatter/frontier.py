@@ -100,7 +100,9 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
                     + grid(slice_spacing=[0.5, 1.0, 2.0], light_rays=[0, 512, 1024])
                     + grid(slice_spacing=[4.0], light_rays=[0])
                     + grid(slice_spacing=[1.0, 2.0, 4.0], slice_interpolation=[False])
-                    + grid(slice_spacing=[2.0], prefilter=[1]))
+                    + grid(slice_spacing=[2.0], prefilter=[1])
+                    # accurate end: the re-marched samples' segments
+                    + grid(slice_spacing=[1.0], ring_steps=[1024]))
         return ([{}]
                 + grid(slice_spacing=[0.5, 1.0, 2.0, 4.0], light_rays=[0, 1024],
                        prefilter=[4], slice_interpolation=[True])
@@ -112,7 +114,11 @@ def _tree_grid(budget: str, convention: str) -> list[dict]:
                 + grid(slice_spacing=[4.0, 8.0], light_rays=[256], prefilter=[4],
                        slice_interpolation=[True])
                 + grid(slice_spacing=[8.0], light_rays=[0], prefilter=[4],
-                       slice_interpolation=[True]))
+                       slice_interpolation=[True])
+                # accurate end: where the re-marched samples' 256 segments are
+                # the floor (a thin shaft's edges, beam: 6.5e-5 at any slices)
+                + grid(slice_spacing=[1.0, 2.0], light_rays=[0], prefilter=[4],
+                       slice_interpolation=[True], ring_steps=[1024, 4096]))
     # antialiased: the defaults (slices 1/sqrt(spp) px apart, following the
     # samples) and fixed spacings at each sample count
     if budget == "quick":
