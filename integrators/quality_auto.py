@@ -244,6 +244,19 @@ def probe_settings(method: str, diagonal: float) -> list[dict]:
     raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
 
 
+def probe_errors(probe: Probe, method: str, budget: float):
+    """``(first, e1, e2)``: the probe's errors at its two settings of
+    ``method`` (:func:`probe_settings`), the cheaper ``first`` rendered
+    first; ``e2`` is None when ``e1`` already meets the target (the second
+    setting is then not rendered, and the rule returns ``first``, whose
+    render the probe keeps)."""
+    first, second = probe_settings(method, probe.diagonal)
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first, e1, None
+    return first, e1, probe.error(second)
+
+
 def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     """Steps of the exact marcher: relMSE = C n^k through the probe's two
     step counts (k clamped; the fitted k where the probe sees no error)."""
@@ -302,11 +315,9 @@ def light_rays_of(density: float, diagonal: float) -> int:
 
 def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     """Slice spacing and light rays of the tree (module doc)."""
-    first, second = probe_settings("epipolar_tree", probe.diagonal)
-    e1 = probe.error(first)
-    if e1 <= target_of(budget):
-        return first                  # the cheaper probe already meets it: its render is kept
-    e2 = probe.error(second)
+    first, e1, e2 = probe_errors(probe, "epipolar_tree", budget)
+    if e2 is None:
+        return first
     s, r = tree_choice(e1, e2, budget, fit)
     return {"slice_spacing": s, "light_rays": light_rays_of(r, probe.diagonal)}
 
@@ -340,11 +351,8 @@ def filter_settings(e1: float, e2: float, budget: float, fit=None) -> dict:
 
 def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     """Coefficients and weights of the filter (module doc)."""
-    first, second = probe_settings("fourier_filter", probe.diagonal)
-    e1 = probe.error(first)
-    if e1 <= target_of(budget):
-        return first                  # the cheaper probe already meets it: its render is kept
-    return filter_settings(e1, probe.error(second), budget, fit)
+    first, e1, e2 = probe_errors(probe, "fourier_filter", budget)
+    return first if e2 is None else filter_settings(e1, e2, budget, fit)
 
 
 def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
@@ -364,11 +372,8 @@ def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
 
 def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
     """Initial step of the min/max method (module doc)."""
-    first, second = probe_settings("minmax_epipolar", probe.diagonal)
-    e1 = probe.error(first)
-    if e1 <= target_of(budget):
-        return first                  # the cheaper probe already meets it: its render is kept
-    return {"initial_step": minmax_step(e1, probe.error(second), budget, fit)}
+    first, e1, e2 = probe_errors(probe, "minmax_epipolar", budget)
+    return first if e2 is None else {"initial_step": minmax_step(e1, e2, budget, fit)}
 
 
 #: method -> the knobs its rule chooses and the rule (probe, budget) -> settings
