@@ -48,23 +48,29 @@ def measure(scene_name: str, repeats: int, method: str = "epipolar_tree",
             "load": c.load_average()}
 
 
-def judged(scene_name: str, image, width: int, height: int) -> dict:
-    """Errors of ``image`` against this tree's cached exact working reference
+def reference_of(scene_name: str, width: int, height: int):
+    """This tree's cached exact working reference of a suite scene
     (:func:`experiments.common.scene_with_reference`)."""
     from experiments import common as c
 
     s = {"width": width, "height": height, "reference_steps": c.REFERENCE_STEPS}
-    _, ref, _ = c.scene_with_reference(scene_name, s, False)
+    return c.scene_with_reference(scene_name, s, False)[1]
+
+
+def judged(image, ref) -> dict:
+    """Errors of ``image`` against the reference ``ref``."""
+    from experiments import common as c
+
     e = c.errors(image, ref, blocks=(1,))
     return {"relmse": e["relmse_b1"], "mean_ratio": e["mean_ratio_b1"],
             "max_err_over_peak": e["max_error_over_peak_b1"], "flip": e["flip_b1"]}
 
 
 def run_tree(tree: str, scene: str, repeats: int, method: str = "epipolar_tree",
-             size: str = f"{WIDTH}x{HEIGHT}") -> dict:
-    """:func:`measure` in a subprocess importing ``tree``'s packages (this
-    file run with ``--measure`` from ``tree``); its image is judged here,
-    against this tree's reference, so both trees meet the same one."""
+             size: str = f"{WIDTH}x{HEIGHT}"):
+    """(row, image): :func:`measure` in a subprocess importing ``tree``'s
+    packages (this file run with ``--measure`` from ``tree``), and the image
+    it rendered, for the caller to judge against one reference."""
     import tempfile
 
     import numpy as np
@@ -78,8 +84,7 @@ def run_tree(tree: str, scene: str, repeats: int, method: str = "epipolar_tree",
                              cwd=tree, env=env, capture_output=True, text=True, check=True).stdout
         image = np.load(image_out)
     line = [x for x in out.splitlines() if x.startswith("RESULT ")][-1]
-    width, height = (int(x) for x in size.lower().split("x"))
-    return {**json.loads(line[len("RESULT "):]), **judged(scene, image, width, height)}
+    return json.loads(line[len("RESULT "):]), image
 
 
 def table(rows: list[dict]) -> str:
@@ -125,10 +130,11 @@ def main(argv=None):
         p.error("--before TREE is required")
     rows = []
     for i, scene in enumerate(args.scenes):
+        ref = reference_of(scene, width, height)
         order = [("before", args.before), ("after", args.after)]
         for version, tree in (order if i % 2 == 0 else order[::-1]):
-            r = {**run_tree(tree, scene, args.repeats, args.method, args.size),
-                 "version": version, "tree": tree}
+            r, image = run_tree(tree, scene, args.repeats, args.method, args.size)
+            r = {**r, **judged(image, ref), "version": version, "tree": tree}
             print(json.dumps(r), flush=True)
             rows.append(r)
     out = Path(args.out)
@@ -136,8 +142,8 @@ def main(argv=None):
     (out / "suite_before_after.json").write_text(json.dumps(rows, indent=1))
     text = "\n\n".join([
         f"# {args.method} at its defaults on the suite, before and after",
-        f"{width}x{height}, 1 spp at **pixel centres**, both versions against the after tree's "
-        "exact working reference (raymarch visibility=exact, 2048 steps, 12 boundary "
+        f"{width}x{height}, 1 spp at **pixel centres**, both versions against the exact "
+        "working reference of the tree running the script (by default the after tree) (raymarch visibility=exact, 2048 steps, 12 boundary "
         "bisections, crack confirmation; cached). Scale-free relMSE (eps 1e-2 x "
         "mean(ref)^2), mean ratio, max |error| / reference peak, HDR-FLIP; end-to-end and "
         f"scattering time: median of {args.repeats} warm runs (and the ratio of the fastest runs), OPENBLAS_NUM_THREADS=1, the two "
