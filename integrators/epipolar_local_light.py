@@ -92,7 +92,7 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta
 
-from .epipolar_setup import (EpipolarQueries, EqualLightRays, QueryTerms, gray, light_ray_channels,
+from .epipolar_setup import (EpipolarQueries, EqualLightRays, MIN_AUTO_LIGHT_RAYS, QueryTerms, gray, light_ray_channels,
                              mode_visibility, factor_arrays,
                              light_ray_count, light_side_extinction, row_gamma_end, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
@@ -277,6 +277,24 @@ def light_ray_range(params, queries: EpipolarQueries):
     return dr.select(lit, lo, 0.0), dr.select(lit, hi, gamma_max), lit
 
 
+def light_ray_spacing(lo, hi, lit, d: int, auto: bool, gamma_max) -> float:
+    """Δγ of the light-ray lattice: the widest *lit* row's range ``[lo, hi]``
+    over ``d − 1`` (a dark row's range carries no light).  Automatic ``d``
+    (:func:`~integrators.epipolar_setup.auto_light_rays`, about one light ray
+    per pixel of the image diagonal) spans the image as the light sees it,
+    the widest row's whole ``[0, max γ_end]`` (``gamma_max``), and a spot's
+    cone then takes its share of them, but at least
+    ``MIN_AUTO_LIGHT_RAYS`` across its widest lit row: a narrow cone is
+    not left with a few light rays, nor a wide one with more than the
+    image's resolution asks for."""
+    width_lit = float(dr.max(dr.select(lit, hi - lo, 0.0) if dr.any(lit)[0] else hi - lo)[0])
+    delta = width_lit / (d - 1)
+    if auto:
+        whole = float(dr.max(gamma_max)[0]) / (d - 1)
+        delta = max(delta, min(whole, width_lit / (MIN_AUTO_LIGHT_RAYS - 1)))
+    return delta
+
+
 def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
                          t_end_max: float = 0.0) -> LocalLightRays:
     """Light rays on one lattice (:class:`LocalLightRays`): ``Δγ`` = the
@@ -290,10 +308,9 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     (:class:`LocalSeparation`)."""
     frame = queries.frame
     lo, hi, lit = light_ray_range(params, queries)
+    auto = not d
     d = max(int(light_ray_count(params, d, t_end_max)), 2)
-    # the widest *lit* row: a dark row's range [0, max γ_end] carries no light
-    width = float(dr.max(dr.select(lit, hi - lo, 0.0) if dr.any(lit)[0] else hi - lo)[0])
-    delta = max(width / (d - 1), 1e-7)
+    delta = max(light_ray_spacing(lo, hi, lit, d, auto, row_gamma_end(queries, 1e-6)), 1e-7)
     m = mi.UInt32(dr.floor(lo / delta))
     start = mi.Float(m) * delta
     count = mi.UInt32(dr.clip(dr.ceil((hi - start) / delta), 1, d))

@@ -332,6 +332,25 @@ def test_local_light_rays_form_one_lattice():
                                    rtol=1e-4, atol=1e-3)
 
 
+def test_automatic_light_ray_spacing_follows_the_image_with_a_floor_in_the_cone():
+    """Automatic d: Δγ = the image's widest row [0, max γ_end] / (d − 1) --
+    a wide spot cone takes its share of the image's d light rays, not d of
+    its own (spot_room 640x480: 3.13M -> 1.21M light rays) -- but at least
+    MIN_AUTO_LIGHT_RAYS across a narrow cone's widest lit row (seed 84);
+    an explicit d spans the widest lit row; a point light's rows are all lit."""
+    F = lambda *v: mi.Float(list(map(float, v)))
+    B = lambda *v: mi.Bool(list(v))
+    d = 800
+    narrow = ll.light_ray_spacing(F(0.10, 0.0), F(0.11, 0.9), B(True, False), d, True, F(1.0, 0.9))
+    assert narrow == pytest.approx(0.01 / (es.MIN_AUTO_LIGHT_RAYS - 1), rel=1e-5)
+    wide = ll.light_ray_spacing(F(0.1, 0.0), F(0.9, 0.9), B(True, False), d, True, F(1.0, 0.9))
+    assert wide == pytest.approx(1.0 / (d - 1), rel=1e-5)
+    explicit = ll.light_ray_spacing(F(0.1, 0.0), F(0.9, 0.9), B(True, False), d, False, F(1.0, 0.9))
+    assert explicit == pytest.approx(0.8 / (d - 1), rel=1e-5)
+    point = ll.light_ray_spacing(F(0.0, 0.0), F(1.0, 0.5), B(True, True), d, True, F(1.0, 0.5))
+    assert point == pytest.approx(1.0 / (d - 1), rel=1e-5)
+
+
 @settings(max_examples=25, deadline=None)
 @given(axis=st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: np.linalg.norm(v) > 0.1),
        cutoff=st.floats(5.0, 90.0), alpha=st.floats(-math.pi, math.pi))
