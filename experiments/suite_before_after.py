@@ -15,7 +15,8 @@ HDR-FLIP, of the full image.  The order of the two processes alternates
 from scene to scene.
 
 ``python -m experiments.suite_before_after --before /work/wt/h13-main
-[--scenes ...] [--method fourier_filter] [--size 320x240] [--out results/stability]``
+[--scenes ...] [--method fourier_filter] [--size 320x240] [--after-props JSON]
+[--out results/stability]``
 writes ``suite_before_after.json`` and ``.md``.
 """
 from __future__ import annotations
@@ -32,15 +33,17 @@ WIDTH, HEIGHT = 640, 480
 
 
 def measure(scene_name: str, repeats: int, method: str = "epipolar_tree",
-            width: int = WIDTH, height: int = HEIGHT, image_out: str | None = None) -> dict:
-    """This process's tree: median times of ``method`` at its defaults on one
-    suite scene, 1 spp; the image is saved to ``image_out`` (``.npy``) so
-    that the parent judges both trees against one reference."""
+            width: int = WIDTH, height: int = HEIGHT, image_out: str | None = None,
+            props: dict | None = None) -> dict:
+    """This process's tree: median times of ``method`` at its defaults (or
+    with ``props``) on one suite scene, 1 spp; the image is saved to
+    ``image_out`` (``.npy``) so that the parent judges both trees against
+    one reference."""
     import numpy as np
     from experiments import common as c
 
     scene = c.load(c.scene_file(scene_name), c.resolution(width, height))
-    t = c.time_renders(scene, {"m": c.build(method, {})}, repeats=repeats, spp=1)["m"]
+    t = c.time_renders(scene, {"m": c.build(method, props or {})}, repeats=repeats, spp=1)["m"]
     if image_out:
         np.save(image_out, np.asarray(t["image"], dtype=np.float32))
     return {"scene": scene_name, "time_s": t["time_s"], "time_min_s": min(t["times_s"]),
@@ -67,10 +70,11 @@ def judged(image, ref) -> dict:
 
 
 def run_tree(tree: str, scene: str, repeats: int, method: str = "epipolar_tree",
-             size: str = f"{WIDTH}x{HEIGHT}"):
+             size: str = f"{WIDTH}x{HEIGHT}", props: dict | None = None):
     """(row, image): :func:`measure` in a subprocess importing ``tree``'s
-    packages (this file run with ``--measure`` from ``tree``), and the image
-    it rendered, for the caller to judge against one reference."""
+    packages (this file run with ``--measure`` from ``tree``; ``props``: the
+    method's properties, default none), and the image it rendered, for the
+    caller to judge against one reference."""
     import tempfile
 
     import numpy as np
@@ -80,7 +84,8 @@ def run_tree(tree: str, scene: str, repeats: int, method: str = "epipolar_tree",
         env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
         out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure", scene,
                               "--repeats", str(repeats), "--method", method, "--size", size,
-                              "--image-out", image_out],
+                              "--image-out", image_out] + (
+                                 ["--props", json.dumps(props)] if props else []),
                              cwd=tree, env=env, capture_output=True, text=True, check=True).stdout
         image = np.load(image_out)
     line = [x for x in out.splitlines() if x.startswith("RESULT ")][-1]
@@ -119,12 +124,17 @@ def main(argv=None):
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--method", default="epipolar_tree", help="integrator (default epipolar_tree)")
     p.add_argument("--size", default=f"{WIDTH}x{HEIGHT}", help="WxH (default 640x480)")
+    p.add_argument("--after-props", default="{}", metavar="JSON",
+                   help="properties of the after version's renders, e.g. "
+                        "'{\"remarch_disagreement\": 1.0}' (default: its defaults)")
+    p.add_argument("--props", default="{}", help=argparse.SUPPRESS)
     p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "results/stability"))
     args = p.parse_args(argv)
     width, height = (int(x) for x in args.size.lower().split("x"))
     if args.measure:
         print("RESULT " + json.dumps(measure(args.measure, args.repeats, args.method, width,
-                                             height, args.image_out)), flush=True)
+                                             height, args.image_out, json.loads(args.props))),
+              flush=True)
         return
     if not args.before:
         p.error("--before TREE is required")
@@ -133,7 +143,8 @@ def main(argv=None):
         ref = reference_of(scene, width, height)
         order = [("before", args.before), ("after", args.after)]
         for version, tree in (order if i % 2 == 0 else order[::-1]):
-            r, image = run_tree(tree, scene, args.repeats, args.method, args.size)
+            props = json.loads(args.after_props) if version == "after" else None
+            r, image = run_tree(tree, scene, args.repeats, args.method, args.size, props)
             r = {**r, **judged(image, ref), "version": version, "tree": tree}
             print(json.dumps(r), flush=True)
             rows.append(r)
@@ -148,7 +159,9 @@ def main(argv=None):
         "mean(ref)^2), mean ratio, max |error| / reference peak, HDR-FLIP; end-to-end and "
         f"scattering time: median of {args.repeats} warm runs (and the ratio of the fastest runs), OPENBLAS_NUM_THREADS=1, the two "
         "versions in alternating processes per scene (experiments.suite_before_after). "
-        f"Before: {args.before}; after: {args.after}. Load averages in the JSON.",
+        f"Before: {args.before}; after: {args.after}"
+        + (f" with {args.after_props}" if json.loads(args.after_props) else "")
+        + ". Load averages in the JSON.",
         table(rows)])
     (out / "suite_before_after.md").write_text(text + "\n")
     print(text)
