@@ -197,20 +197,26 @@ def held_out_scenes(n, first_seed, size, kind=KIND):
     from episcatter.reference import render_rgb
     from experiments.random_scenes import random_scene
 
+    from tqdm.auto import tqdm
+
     out, seed, skipped = [], first_seed, []
-    while len(out) < n and seed < first_seed + 20 * n:
-        spec = random_scene(seed, kind).at_resolution(*size)
-        seed += 1
-        scene = spec.load()
-        ref = render_rgb(scene, mi.load_dict(REFERENCE), spp=1)
-        why = usable_reference(ref)
-        if not why:
-            e = fr.image_errors(render_rgb(scene, mi.load_dict(CHEAPEST), spp=1), ref)["relmse"]
-            why = None if e > HARD_LEVEL else f"16 steps already at relMSE {e:.2g}"
-        if why:
-            skipped.append((spec.name, why))
-            continue
-        out.append((spec.name, scene, ref))
+    with tqdm(total=n, desc="held-out scenes (references)", unit="scene") as bar:
+        while len(out) < n and seed < first_seed + 20 * n:
+            spec = random_scene(seed, kind).at_resolution(*size)
+            seed += 1
+            scene = spec.load()
+            ref = render_rgb(scene, mi.load_dict(REFERENCE), spp=1)
+            why = usable_reference(ref)
+            if not why:
+                e = fr.image_errors(render_rgb(scene, mi.load_dict(CHEAPEST), spp=1),
+                                    ref)["relmse"]
+                why = None if e > HARD_LEVEL else f"16 steps already at relMSE {e:.2g}"
+            bar.set_postfix_str(f"{spec.name}: {why or 'kept'}; {len(skipped)} skipped")
+            if why:
+                skipped.append((spec.name, why))
+                continue
+            out.append((spec.name, scene, ref))
+            bar.update(1)
     return out, skipped
 
 
