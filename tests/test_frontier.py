@@ -110,6 +110,26 @@ def test_speedup_table_reads_every_method_against_the_baseline_per_scene_and_con
         pytest.approx(100.0)
 
 
+def test_capture_bound_is_the_marchers_time_at_the_level_over_the_camera_capture():
+    from episcatter import frontier_report as rep
+
+    def row(method, t, e, cam, **kw):
+        return {"scene": "a.xml", "convention": "pixel_centre", "method": method, "time_s": t,
+                "relmse": e, "spp": 1, "camera_capture_s": cam, **kw}
+    rows = ([row("raymarch", 1.0, 1e-3, 0.1), row("raymarch", 4.0, 1e-5, 0.1)]
+            + [row("epipolar_tree", 0.5, 1e-4, 0.3), row("epipolar_tree", 0.6, 1e-5, 0.2),
+               row("epipolar_tree", 0.6, 1e-6, 9.0, spp=4)])    # not a 1-spp capture
+    bounds = {b["level"]: b for b in rep.capture_bound_rows(rows, levels=(1e-3, 1e-4, 1e-6))}
+    # median of the 1-spp captures (0.1, 0.1, 0.3, 0.2) = 0.15
+    assert bounds[1e-3]["camera_capture_s"] == pytest.approx(0.15)
+    assert bounds[1e-3]["largest_speedup"] == pytest.approx(1.0 / 0.15)
+    assert bounds[1e-4]["raymarch_time_s"] == pytest.approx(2.0)      # log-log midpoint
+    assert bounds[1e-4]["bound"] == "="
+    assert bounds[1e-6]["bound"] == ">=" and bounds[1e-6]["raymarch_time_s"] == 4.0
+    text = rep.markdown_report(rows, [], [], list(bounds.values()))
+    assert "largest end-to-end speedup" in text and ">= 26.7x" in text
+
+
 # --------------------------------------------------------------------------
 # Grids, tasks
 # --------------------------------------------------------------------------
