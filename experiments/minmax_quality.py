@@ -100,11 +100,12 @@ def measure_scene(name, s, progress):
     rows, images = [], {}
     for label, (kind, props) in METHODS.items():
         integ = c.build(kind, {**props, "output": "full"})
-        img = np.asarray(c.render_rgb(scene, integ, spp=1), np.float64)
+        result = integ.render_layers(scene, 0, 0, 1)      # the render's stats travel with it
+        img = np.asarray(result["full"], np.float64)[..., :3]
         images[label] = img
         row = {"scene": name, "method": label, **mc.quality(img, ref)}
-        st = getattr(integ, "stats", None)
-        if st:
+        st = result.stats
+        if "integration_samples" in st:
             row.update(integration_samples=st["integration_samples"],
                        used_samples=st["used_samples"], fixup_pixels=st["fixup_pixels"])
         for mname, m in masks.items():

@@ -495,6 +495,18 @@ def test_experiments_quick(tmp_path, cache, name):
         assert (tmp_path / f).is_file()
 
 
+def test_quality_experiment_counts_integration_samples_and_fixups(tmp_path, cache):
+    """Issue 14 item 4 asks for the integration samples and fix-up pixels of
+    each refinement criterion: they travel in the render's
+    ``RenderResult.stats`` (the experiment read a stale integrator
+    attribute and printed '-')."""
+    from experiments import minmax_quality as mq
+    rows = mq.main(["--quick", "--out", str(tmp_path)])
+    minmax = [r for r in rows if r["method"].startswith("minmax")]
+    assert minmax and all(r["integration_samples"] > 0 and r["fixup_pixels"] >= 0
+                          and r["used_samples"] >= r["integration_samples"] for r in minmax)
+
+
 def test_performance_sizes_are_the_talks(tmp_path, cache):
     """``--sizes`` takes only the talk's table sizes (a clear error names
     them); with ``--no-directional`` only those spot tables are run."""
