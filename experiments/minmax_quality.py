@@ -88,6 +88,16 @@ def masked_errors(img, ref, mask) -> dict:
             "pixels": int(mask.sum())}
 
 
+def render_with_counts(integ, scene):
+    """(full image (H, W, 3) float64, counts) of one 1-spp render; counts:
+    ``integration_samples``, ``used_samples`` and ``fixup_pixels`` from the
+    render's ``RenderResult.stats`` (``minmax_epipolar``; empty otherwise)."""
+    result = integ.render_layers(scene, 0, 0, 1)
+    img = np.asarray(result["full"], np.float64)[..., :3]
+    keys = ("integration_samples", "used_samples", "fixup_pixels")
+    return img, {k: result.stats[k] for k in keys if k in result.stats}
+
+
 def measure_scene(name, s, progress):
     path = c.scene_file(name)
     defines = {**c.resolution(s["width"], s["height"])}
@@ -99,15 +109,9 @@ def measure_scene(name, s, progress):
     masks = {"depth edges": depth_edges(depth), "shaft edges": shaft_edges(ref)}
     rows, images = [], {}
     for label, (kind, props) in METHODS.items():
-        integ = c.build(kind, {**props, "output": "full"})
-        result = integ.render_layers(scene, 0, 0, 1)      # the render's stats travel with it
-        img = np.asarray(result["full"], np.float64)[..., :3]
+        img, counts = render_with_counts(c.build(kind, {**props, "output": "full"}), scene)
         images[label] = img
-        row = {"scene": name, "method": label, **mc.quality(img, ref)}
-        st = result.stats
-        if "integration_samples" in st:
-            row.update(integration_samples=st["integration_samples"],
-                       used_samples=st["used_samples"], fixup_pixels=st["fixup_pixels"])
+        row = {"scene": name, "method": label, **mc.quality(img, ref), **counts}
         for mname, m in masks.items():
             e = masked_errors(img, ref, m)
             row.update({f"{mname} relmse": e["relmse"],

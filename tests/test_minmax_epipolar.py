@@ -495,16 +495,21 @@ def test_experiments_quick(tmp_path, cache, name):
         assert (tmp_path / f).is_file()
 
 
-def test_quality_experiment_counts_integration_samples_and_fixups(tmp_path, cache):
+def test_quality_experiment_counts_integration_samples_and_fixups(make_scene):
     """Issue 14 item 4 asks for the integration samples and fix-up pixels of
     each refinement criterion: they travel in the render's
-    ``RenderResult.stats`` (the experiment read a stale integrator
-    attribute and printed '-')."""
+    ``RenderResult.stats`` (experiments.minmax_quality read a stale
+    integrator attribute and printed '-')."""
     from experiments import minmax_quality as mq
-    rows = mq.main(["--quick", "--out", str(tmp_path)])
-    minmax = [r for r in rows if r["method"].startswith("minmax")]
-    assert minmax and all(r["integration_samples"] > 0 and r["fixup_pixels"] >= 0
-                          and r["used_samples"] >= r["integration_samples"] for r in minmax)
+    scene = make_scene(res=(24, 18))
+    img, counts = mq.render_with_counts(mi.load_dict({"type": "minmax_epipolar",
+                                                      "output": "full"}), scene)
+    assert img.shape == (18, 24, 3) and np.isfinite(img).all()
+    assert set(counts) == {"integration_samples", "used_samples", "fixup_pixels"}
+    assert 0 < counts["integration_samples"] <= counts["used_samples"]
+    assert counts["fixup_pixels"] >= 0
+    _, none = mq.render_with_counts(mi.load_dict({"type": "raymarch", "output": "full"}), scene)
+    assert none == {}
 
 
 def test_performance_sizes_are_the_talks(tmp_path, cache):
