@@ -31,12 +31,16 @@ to meet ``SAFETY * error_budget`` (the most accurate one when none is).
   A·(s/s₀)^a + B·(ρ/ρ₀)^-b in the slice spacing s [px] and the light-ray
   density ρ (light rays per slice over the image diagonal in pixels; the
   light-ray term is the tree's error floor at fixed light rays); the probe
-  renders (s₀, ρ₀) and (s₀, 4ρ₀), which separates A and B; time ~
-  α + β/s + γ·ρ/s (fitted).
+  renders (s₀, ρ₀), then -- unless that meets the target -- the setting
+  the model predicts from that error alone (A = B = its error, a
+  conservative split), which is the answer when it meets the target and
+  otherwise separates A and B; time ~ α + β/s + γ·ρ/s (fitted).
 * ``fourier_filter`` (Klehm 2014 §3 truncated Fourier series): relMSE =
   F + C·M^k in the coefficients M (F: what the series cannot fix, mostly
   the ``reference_ray`` weights' approximation); the probe renders M = 16
-  and 32 with the default weights.  Where F alone misses the target the
+  with the default weights, then -- unless that meets the target -- the M
+  predicted as if its error were all series (F = 0), which is the answer
+  when it meets the target and otherwise gives F and C.  Where F alone misses the target the
   rule switches to ``weights="exact"`` (which removes most of F) and picks
   M from the series term C·M^k alone.
 
@@ -49,10 +53,12 @@ to meet ``SAFETY * error_budget`` (the most accurate one when none is).
 
 Where a probe renders the whole image (tree, filter, minmax), it renders
 its cheaper setting first and stops there when that setting's error
-already meets the target: the rule returns it, and the render reuses the
-probe's own render of it (:func:`kept_render`) when that is the render
-asked for (the whole frame, one sample per pixel centre, output ``full``,
-the same seed).
+already meets the target: the rule returns it.  The tree's and the
+filter's second probe setting is their predicted answer, returned when it
+meets the target.  Either way the render reuses the probe's own render of
+the setting returned (:func:`kept_render`) when that is the render asked
+for (the whole frame, one sample per pixel centre, output ``full``, the
+same seed).
 
 The chosen settings, the probe's errors and its time go into the render's
 ``RenderResult.stats`` (``auto_settings``, ``auto_probe``,
@@ -230,7 +236,11 @@ def target_of(budget: float) -> float:
 
 def probe_settings(method: str, diagonal: float) -> list[dict]:
     """The two settings the probe of ``method`` renders (module doc), for an
-    image of ``diagonal`` pixels."""
+    image of ``diagonal`` pixels.  The tree's and the filter's rules render
+    the first and, in place of the second, their predicted answer
+    (:func:`choose_tree`, :func:`choose_filter`; the fixed second setting
+    only where there is no prediction); ``experiments.error_budget``
+    measures the probe's estimates on this fixed pair."""
     if method == "raymarch":
         return [{"visibility": "exact", "steps": n} for n in MARCH_PROBE]
     if method == "epipolar_tree":
@@ -279,23 +289,40 @@ def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:
     return int(min(max(math.ceil(n), 16), 16384))
 
 
-def tree_model(e1: float, e2: float, fit=None):
+def tree_model(e1: float, e2: float, fit=None, second=None):
     """(A, B) of relMSE = A (s/s0)^a + B (rho/rho0)^-b from the probe's
-    errors at (s0, rho0) and (s0, 4 rho0)."""
+    errors ``e1`` at (s0, rho0) and ``e2`` at ``second`` = (s, rho)
+    (default (s0, 4 rho0), :data:`TREE_PROBE`).  A and B are clamped to
+    >= 0; where the two settings cannot separate them (both terms scale
+    alike), each is given the whole error the probe saw."""
     fit = fit or FIT["epipolar_tree"]
-    _, r0, r1 = TREE_PROBE
-    q = (r1 / r0) ** -fit["b"]
-    B = max((e1 - e2) / (1.0 - q), 0.0)
-    A = max(e1 - B, 0.0)
+    s0, r0, r1 = TREE_PROBE
+    s2, r2 = second if second is not None else (s0, r1)
+    u = (s2 / s0) ** fit["a"]
+    v = (r2 / r0) ** -fit["b"]
+    if abs(v - u) <= 1e-9 * max(u, v):
+        share = max(e1, e2 / u)
+        return share, share
+    B = (e2 - u * e1) / (v - u)
+    if B < 0:
+        return max(e1, e2 / u), 0.0
+    A = e1 - B
+    if A < 0:
+        return 0.0, max(e1, e2 / v)
     return A, B
 
 
-def tree_choice(e1: float, e2: float, budget: float, fit=None):
+def tree_choice(e1: float, e2: float, budget: float, fit=None, second=None):
     """(slice_spacing, density) of least modelled time meeting the target
-    (the most accurate candidate if none does)."""
+    (the most accurate candidate if none does), the model through the
+    probe's errors (:func:`tree_model`)."""
+    return tree_choice_of(*tree_model(e1, e2, fit, second), budget, fit)
+
+
+def tree_choice_of(A: float, B: float, budget: float, fit=None):
+    """:func:`tree_choice` for the model's terms ``A`` and ``B``."""
     fit = fit or FIT["epipolar_tree"]
     s0, r0, _ = TREE_PROBE
-    A, B = tree_model(e1, e2, fit)
     al, be, ga = fit["time"]
     best, most = None, None
     for s in TREE_SPACINGS:
@@ -313,33 +340,51 @@ def light_rays_of(density: float, diagonal: float) -> int:
     return int(min(max(round(density * diagonal), 32), 32767))
 
 
+def tree_settings(s: float, r: float, diagonal: float) -> dict:
+    return {"slice_spacing": s, "light_rays": light_rays_of(r, diagonal)}
+
+
 def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
-    """Slice spacing and light rays of the tree (module doc)."""
-    first, e1, e2 = probe_errors(probe, "epipolar_tree", budget)
-    if e2 is None:
+    """Slice spacing and light rays of the tree (module doc): the first probe
+    setting if it meets the target; else the setting predicted from its
+    error alone (both terms of the model given all of it), rendered as the
+    second probe and returned if it meets the target; else the choice of
+    the model through both."""
+    first = probe_settings("epipolar_tree", probe.diagonal)[0]
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
         return first
-    s, r = tree_choice(e1, e2, budget, fit)
-    return {"slice_spacing": s, "light_rays": light_rays_of(r, probe.diagonal)}
+    s2, r2 = tree_choice_of(e1, e1, budget, fit)
+    second = tree_settings(s2, r2, probe.diagonal)
+    if second == first:                  # no prediction beyond it: the fixed second probe
+        second = probe_settings("epipolar_tree", probe.diagonal)[1]
+        s2, r2 = TREE_PROBE[0], TREE_PROBE[2]
+    e2 = probe.error(second)
+    if e2 <= target_of(budget):
+        return second
+    return tree_settings(*tree_choice(e1, e2, budget, fit, (s2, r2)), probe.diagonal)
 
 
-def filter_model(e1: float, e2: float, fit=None) -> tuple[float, float]:
-    """(F, C) of relMSE = F + C M^k through the probe's errors at
-    :data:`FILTER_PROBE` (module doc)."""
+def filter_model(e1: float, e2: float, fit=None, m2: int | None = None) -> tuple[float, float]:
+    """(F, C) of relMSE = F + C M^k through the probe's errors ``e1`` at
+    M = :data:`FILTER_PROBE`\ [0] and ``e2`` at ``m2`` (default
+    :data:`FILTER_PROBE`\ [1]) (module doc)."""
     fit = fit or FIT["fourier_filter"]
-    m1, m2 = FILTER_PROBE
+    m1 = FILTER_PROBE[0]
+    m2 = m2 or FILTER_PROBE[1]
     k = fit["k"]
     C = max((e1 - e2) / (m1 ** k - m2 ** k), 0.0)
     return max(e2 - C * m2 ** k, 0.0), C
 
 
-def filter_settings(e1: float, e2: float, budget: float, fit=None) -> dict:
+def filter_settings(e1: float, e2: float, budget: float, fit=None, m2: int | None = None) -> dict:
     """Coefficients M (and weights) of the filter: the smallest candidate
     with F + C M^k within the target; where the floor F alone misses it,
     ``weights="exact"`` and the smallest M with C M^k within it (the most
     coefficients when none is)."""
     fit = fit or FIT["fourier_filter"]
     k = fit["k"]
-    F, C = filter_model(e1, e2, fit)
+    F, C = filter_model(e1, e2, fit, m2)
     for M in FILTER_COEFFICIENTS:
         if F + C * M ** k <= target_of(budget):
             return {"coefficients": M}
@@ -349,10 +394,33 @@ def filter_settings(e1: float, e2: float, budget: float, fit=None) -> dict:
     return {"coefficients": FILTER_COEFFICIENTS[-1], "weights": "exact"}
 
 
+def predicted_coefficients(e1: float, budget: float, fit=None) -> int:
+    """The second probe's M: the smallest candidate above the first probe's
+    M whose series term C M^k meets the target if all of the first probe's
+    error ``e1`` is series (F = 0)."""
+    fit = fit or FIT["fourier_filter"]
+    m1 = FILTER_PROBE[0]
+    above = [M for M in FILTER_COEFFICIENTS if M > m1]
+    for M in above:
+        if e1 * (M / m1) ** fit["k"] <= target_of(budget):
+            return M
+    return above[-1]
+
+
 def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
-    """Coefficients and weights of the filter (module doc)."""
-    first, e1, e2 = probe_errors(probe, "fourier_filter", budget)
-    return first if e2 is None else filter_settings(e1, e2, budget, fit)
+    """Coefficients and weights of the filter (module doc): the first probe
+    setting if it meets the target; else the M predicted from its error
+    alone (:func:`predicted_coefficients`), rendered as the second probe
+    and returned if it meets the target; else the model through both."""
+    first = probe_settings("fourier_filter", probe.diagonal)[0]
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first
+    m2 = predicted_coefficients(e1, budget, fit)
+    e2 = probe.error({"coefficients": m2})
+    if e2 <= target_of(budget):
+        return {"coefficients": m2}
+    return filter_settings(e1, e2, budget, fit, m2)
 
 
 def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:

@@ -102,10 +102,53 @@ class FixedProbe:
     """A probe whose errors are given (the rules' input without a render)."""
 
     def __init__(self, errors, diagonal=200.0):
-        self.errors, self.diagonal = list(errors), diagonal
+        self.errors, self.diagonal, self.asked = list(errors), diagonal, []
 
     def error(self, settings, partial=False):
+        self.asked.append(settings)
         return self.errors.pop(0)
+
+
+def test_tree_model_recovers_both_terms_from_any_second_setting():
+    fit = qa.FIT["epipolar_tree"]
+    s0, r0, _ = qa.TREE_PROBE
+    A, B = 2e-4, 5e-5
+    for s2, r2 in ((1.0, 2.0), (s0, 4 * r0), (0.5, 0.5), (4.0, 8.0)):
+        e2 = A * (s2 / s0) ** fit["a"] + B * (r2 / r0) ** -fit["b"]
+        assert qa.tree_model(A + B, e2, second=(s2, r2)) == pytest.approx((A, B), rel=1e-9)
+    # both terms scaled alike: not separable, each gets the whole error
+    assert qa.tree_model(1e-4, 1e-4, second=(s0, r0)) == (1e-4, 1e-4)
+
+
+def test_tree_renders_its_prediction_second_and_keeps_it_when_it_meets_the_target():
+    """The first probe misses a 1e-5 budget (relMSE 1e-3); the second probe is
+    the setting predicted from that error alone, and its error (1e-6) meets
+    the target, so it is the answer (and its probe render can be reused)."""
+    probe = FixedProbe([1e-3, 1e-6])
+    got = qa.choose_tree(probe, 1e-5)
+    first = qa.probe_settings("epipolar_tree", probe.diagonal)[0]
+    assert probe.asked[0] == first and probe.asked[1] == got != first
+    s, r = qa.tree_choice_of(1e-3, 1e-3, 1e-5)
+    assert got == qa.tree_settings(s, r, probe.diagonal)
+    # when the prediction misses too, the model through both errors decides
+    probe = FixedProbe([1e-3, 4e-5])
+    got = qa.choose_tree(probe, 1e-5)
+    assert probe.asked[1] == qa.tree_settings(s, r, probe.diagonal)
+    assert got == qa.tree_settings(*qa.tree_choice(1e-3, 4e-5, 1e-5, second=(s, r)),
+                                   probe.diagonal)
+
+
+def test_filter_renders_its_prediction_second():
+    m1 = qa.FILTER_PROBE[0]
+    k = qa.FIT["fourier_filter"]["k"]
+    m2 = qa.predicted_coefficients(1e-4, 1e-5)
+    assert m2 > m1 and 1e-4 * (m2 / m1) ** k <= qa.SAFETY * 1e-5
+    assert qa.predicted_coefficients(1.0, 1e-5) == qa.FILTER_COEFFICIENTS[-1]
+    probe = FixedProbe([1e-4, 1e-6])
+    assert qa.choose_filter(probe, 1e-5) == {"coefficients": m2} == probe.asked[1]
+    F, C = 2e-5, 0.4
+    e = [F + C * m ** k for m in (m1, 64)]
+    assert qa.filter_model(*e, m2=64) == pytest.approx((F, C), rel=1e-9)
 
 
 def test_filter_floor_above_the_budget_switches_to_exact_weights():
