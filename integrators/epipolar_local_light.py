@@ -92,8 +92,8 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta
 
-from .epipolar_setup import (EpipolarQueries, EqualLightRays, MIN_AUTO_LIGHT_RAYS, QueryTerms, gray, light_ray_channels,
-                             mode_visibility, factor_arrays,
+from .epipolar_setup import (EpipolarQueries, EqualLightRays, MIN_AUTO_LIGHT_RAYS, QueryTerms,
+                             gray, light_ray_channels, mode_visibility, factor_arrays,
                              light_ray_count, light_side_extinction, row_gamma_end, sub_ray_gamma)
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_separation import SeparatedChannel
