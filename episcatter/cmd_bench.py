@@ -1,5 +1,6 @@
 """``episcatter bench SCENE... -i TYPE... [-p name=value]... [--sweep name=v1,v2,...]...
-[-D name=value]... [--reference volpath|exact|none] [--ref-spp N] [--repeats 3] [--block K] [--out DIR]``
+[-D name=value]... [--reference volpath|exact|none] [--ref-spp N] [--repeats 3] [--block K] [--out DIR]
+[--frames N [--warm-repeats 3]]``
 
 Times integrators on scenes over the cartesian product of the sweeps and
 measures their error against a cached reference (see
@@ -10,6 +11,14 @@ prints the table.  Parameter names may be scoped to one integrator as
 ``mi.render``.  Exit status 1 if any job failed (its error is in the table).
 The CLI (``episcatter/cli.py``) wires this module in through
 :func:`add_arguments` and :func:`run`.
+
+``--frames N`` times an animation instead (:mod:`episcatter.flythrough`):
+each scene × integrator renders a fly-through of N frames (the camera,
+the light, then the medium change in place between frames) at 1 spp, and
+the per-frame table is printed: wall time of the frame's first render,
+warm time (median of ``--warm-repeats`` more renders of it), JIT kernels
+launched / compiled and the compile time.  No reference, no sweeps; with
+``--out`` the rows are also written to ``DIR/frames.csv``.
 """
 from __future__ import annotations
 
@@ -56,6 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="output folder (default: results/bench/<scene stems>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("--frames", type=int, default=None, metavar="N",
+                        help="time an N-frame fly-through (camera, light, medium change "
+                             "between frames) and print the per-frame table: kernels "
+                             "compiled per frame, first vs warm render time")
+    parser.add_argument("--warm-repeats", type=int, default=3, metavar="K",
+                        help="with --frames: warm renders of each frame (median; default 3)")
     add_cluster_arguments(parser, "jobs", note="; one timed job per machine: workers need "
                           "--resources machine=1")
 
@@ -79,8 +94,55 @@ def default_out_dir(scenes) -> str:
     return os.path.join("results", "bench", stems)
 
 
+def run_frames(args: argparse.Namespace) -> int:
+    """``--frames N``: a fly-through per scene × integrator, per-frame tables."""
+    import csv
+
+    from .bench import params_for
+    from .flythrough import FRAME_COLUMNS, fly_through, format_frames, summarize_frames
+    from .scene_loading import load_scene, make_integrator
+
+    if args.frames < 1 or args.warm_repeats < 1:
+        raise ValueError("--frames and --warm-repeats must be >= 1.")
+    if args.sweep:
+        raise ValueError("--frames does not sweep: give fixed values with -p name=value.")
+    defines = parse_assignments(args.define)
+    params = parse_assignments(args.param)
+    rows = []
+    for scene_path in args.scenes:
+        for kind in args.integrators:
+            props = params_for(kind, params)
+            spp = int(props.pop("spp", 1) or 1)
+            scene = load_scene(scene_path, defines)
+            integrator = make_integrator(kind, props)
+            frames = fly_through(scene, integrator, frames=args.frames,
+                                 warm_repeats=args.warm_repeats, spp=spp)
+            title = f"{os.path.basename(scene_path)} {kind} {props or ''}".strip()
+            print(format_frames(frames, title))
+            s = summarize_frames(frames)
+            print(f"\nfirst render {s['first_s']:.3g} s; new frames {s['new_mean_s']:.3g} s mean, "
+                  f"{s['new_max_s']:.3g} s max; warm {s['warm_s']:.3g} s; "
+                  f"{s['compiled_mean']:.3g} kernels compiled per new frame\n")
+            rows += [{"scene": scene_path, "integrator": kind, "params": repr(props),
+                      "spp": spp, **{k: r[k] for k in FRAME_COLUMNS}} for r in frames]
+    print("wall = first render of the frame (compile + run); warm = median of "
+          f"{args.warm_repeats} more renders; ratio = wall / warm; compile share = compile "
+          "time / wall; compiled = kernels found neither in memory nor on disk")
+    if args.out:
+        os.makedirs(args.out, exist_ok=True)
+        path = os.path.join(args.out, "frames.csv")
+        with open(path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        print(f"wrote {path}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark described by parsed ``args``; returns the exit status."""
+    if getattr(args, "frames", None) is not None:
+        return run_frames(args)
     metrics.check_eps(args.eps, args.eps_mode)
     if args.repeats < 1:
         raise ValueError(f"--repeats {args.repeats} must be >= 1.")
