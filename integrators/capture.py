@@ -21,8 +21,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .light_transport import (as_color3, box_exit_distance, color, first_blocker, light_transmittance,
-                              point, segment_box, visible_exact)
+from .light_transport import (as_color3, box_exit_distance, color, first_blocker,
+                              light_transmittance, point, scalar, segment_box, vector,
+                              visible_exact)
+from .opaque import floats, reciprocal
 
 #: null-BSDF surfaces a camera or light ray may pass before we give up.
 MAX_NULL_CROSSINGS = 4
@@ -221,32 +223,33 @@ class ShadowMap:
         j = mi.Float((idx // res) % res)
         i = mi.Float(idx % res)
         if self.kind == "ortho":
-            e1, e2, w = (mi.Vector3f(*map(float, v)) for v in self.frames[0])
-            u = self.u0 + (i + 0.5) * self.du
-            v = self.v0 + (j + 0.5) * self.dv
-            o = e1 * u + e2 * v + w * self.s0
+            e1, e2, w = (vector(v) for v in self.frames[0])
+            u = scalar(self.u0) + (i + 0.5) * scalar(self.du)
+            v = scalar(self.v0) + (j + 0.5) * scalar(self.dv)
+            o = e1 * u + e2 * v + w * scalar(self.s0)
             return mi.Point3f(o), -w
-        a = ((i + 0.5) / res * 2 - 1) * self.tan_half
-        b = ((j + 0.5) / res * 2 - 1) * self.tan_half
+        tan_half = scalar(self.tan_half)
+        a = ((i + 0.5) / res * 2 - 1) * tan_half
+        b = ((j + 0.5) / res * 2 - 1) * tan_half
         right, up, fwd = (self._gather_frame(face, k) for k in range(3))
         d = dr.normalize(fwd + right * a + up * b)
-        return mi.Point3f(point(self.origin)), d
+        return point(self.origin), d
 
     def _gather_frame(self, face, k):
         arr = np.array([f[k] for f in self.frames], dtype=np.float32)  # (faces, 3)
-        return mi.Vector3f(*(dr.gather(mi.Float, mi.Float(arr[:, c]), face) for c in range(3)))
+        return mi.Vector3f(*(dr.gather(mi.Float, floats(arr[:, c]), face) for c in range(3)))
 
     # -- lookups ----------------------------------------------------------------
     def _coords(self, x):
         """(face, continuous texel coords u, v, depth of x along its light ray)."""
         res = self.res
         if self.kind == "ortho":
-            e1, e2, w = (mi.Vector3f(*map(float, v)) for v in self.frames[0])
+            e1, e2, w = (vector(v) for v in self.frames[0])
             xv = mi.Vector3f(x)
-            u = (dr.dot(xv, e1) - self.u0) / self.du - 0.5
-            v = (dr.dot(xv, e2) - self.v0) / self.dv - 0.5
-            return mi.UInt32(0), u, v, self.s0 - dr.dot(xv, w)
-        q = mi.Vector3f(x - mi.Point3f(point(self.origin)))
+            u = (dr.dot(xv, e1) - scalar(self.u0)) * reciprocal(self.du) - 0.5
+            v = (dr.dot(xv, e2) - scalar(self.v0)) * reciprocal(self.dv) - 0.5
+            return mi.UInt32(0), u, v, scalar(self.s0) - dr.dot(xv, w)
+        q = mi.Vector3f(x - point(self.origin))
         if self.kind == "cube":
             aq = dr.abs(q)
             xmax = (aq.x >= aq.y) & (aq.x >= aq.z)
@@ -258,7 +261,7 @@ class ShadowMap:
             face = mi.UInt32(0)
         right, up, fwd = (self._gather_frame(face, k) for k in range(3))
         z = dr.dot(q, fwd)
-        inv = dr.rcp(dr.maximum(z, 1e-20) * self.tan_half)
+        inv = dr.rcp(dr.maximum(z, 1e-20) * scalar(self.tan_half))
         u = (dr.dot(q, right) * inv + 1) * 0.5 * res - 0.5
         v = (dr.dot(q, up) * inv + 1) * 0.5 * res - 0.5
         return face, u, v, dr.norm(q)
@@ -291,7 +294,7 @@ class ShadowMap:
             cj = dr.clip(iv + dv, 0, res - 1)
             idx = mi.UInt32(face * res * res + mi.UInt32(cj) * res + mi.UInt32(ci))
             zb = dr.gather(mi.Float, self.depth, idx, active)
-            V += dr.select(zb >= z - self.bias, wgt, 0.0)
+            V += dr.select(zb >= z - scalar(self.bias), wgt, 0.0)
         if self.kind == "persp":
             # outside the spot cone: no blocker information; the emitter's own
             # falloff is zero there anyway.
@@ -348,8 +351,8 @@ def capture_shadow_map(params, camera_capture: CameraCapture, res: int) -> Shado
     if light.kind == "directional":
         e1, e2, w = _orthonormal(light.direction)
         pts = camera_capture.whole().endpoints()
-        u = dr.dot(mi.Vector3f(pts), mi.Vector3f(*map(float, e1)))
-        v = dr.dot(mi.Vector3f(pts), mi.Vector3f(*map(float, e2)))
+        u = dr.dot(mi.Vector3f(pts), vector(e1))
+        v = dr.dot(mi.Vector3f(pts), vector(e2))
         o = params.camera.origin
         u_lo = min(float(dr.min(u)[0]), float(o @ e1))
         u_hi = max(float(dr.max(u)[0]), float(o @ e1))

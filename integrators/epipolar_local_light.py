@@ -98,8 +98,8 @@ from .epipolar_setup import (EpipolarQueries, EqualLightRays, MIN_AUTO_LIGHT_RAY
 from .integrand_svd import log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_separation import SeparatedChannel
 from .kernel_table import nystrom_sums, tabulated_terms
-from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, segment_box,
-                              segment_weight)
+from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, scalar,
+                              segment_box, segment_weight, vector)
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
 CONE_MARGIN = 1e-4
@@ -143,7 +143,7 @@ class LocalLightRays(EqualLightRays):
 
 
 def _basis(frame):
-    return tuple(mi.Vector3f(*map(float, v)) for v in (frame.b1, frame.b2, frame.axis))
+    return tuple(vector(v) for v in (frame.b1, frame.b2, frame.axis))
 
 
 def light_ray_direction(frame, alpha, gamma) -> mi.Vector3f:
@@ -168,10 +168,10 @@ def cone_interval(params, frame, alpha):
         return dr.zeros(mi.Float, n), dr.full(mi.Float, math.pi, n), dr.full(mi.Bool, True, n)
     a = np.asarray(params.light.spot_axis, np.float64)
     sa, ca = dr.sincos(alpha)
-    p = ca * float(frame.b1 @ a) + sa * float(frame.b2 @ a)
-    q = -float(frame.axis @ a)
+    p = ca * scalar(frame.b1 @ a) + sa * scalar(frame.b2 @ a)
+    q = scalar(-float(frame.axis @ a))
     R = dr.sqrt(p * p + q * q)
-    cos_c = math.cos(math.radians(params.light.cutoff_angle))
+    cos_c = scalar(math.cos(math.radians(params.light.cutoff_angle)))
     phi = dr.atan2(p, q)
     delta = dr.acos(dr.minimum(cos_c / dr.maximum(R, 1e-30), 1.0)) + CONE_MARGIN
     lo, hi = phi - delta, phi + delta
@@ -311,11 +311,12 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     auto = not d
     d = max(int(light_ray_count(params, d, t_end_max)), 2)
     delta = max(light_ray_spacing(lo, hi, lit, d, auto, row_gamma_end(queries, 1e-6)), 1e-7)
+    delta = scalar(delta)
     m = mi.UInt32(dr.floor(lo / delta))
     start = mi.Float(m) * delta
-    count = mi.UInt32(dr.clip(dr.ceil((hi - start) / delta), 1, d))
+    count = mi.UInt32(dr.clip(dr.ceil((hi - start) / delta), 1, scalar(d)))
     count = dr.select(lit, count, 1)
-    rays = LocalLightRays(d, start + mi.Float(count) * delta, dr.full(mi.Float, delta, queries.n),
+    rays = LocalLightRays(d, start + mi.Float(count) * delta, dr.zeros(mi.Float, queries.n) + delta,
                           start, offset=m, d_count=count)
     s, gamma = rays.positions(0.5)
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
@@ -332,8 +333,8 @@ def light_intensity(params, frame, w) -> mi.Color3f:
     fall-off and texture included): the delivered radiance at distance ``L``
     times ``L²``."""
     ell = float(frame.light_distance)
-    _, _, spec = sample_light(params, mi.Point3f(point(frame.light_position)) + w * ell)
-    return spec * (ell * ell)
+    _, _, spec = sample_light(params, point(frame.light_position) + w * scalar(ell))
+    return spec * scalar(ell * ell)
 
 
 def projects_texture(params) -> bool:
@@ -350,7 +351,7 @@ def _channels(params) -> int:
 def _light_colour(params, frame) -> mi.Color3f:
     """The intensity along the spot axis (fall-off 1), or of the point light."""
     axis = params.light.spot_axis if params.light.kind == "spot" else frame.axis
-    return light_intensity(params, frame, mi.Vector3f(*map(float, axis)))
+    return light_intensity(params, frame, vector(axis))
 
 
 def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int = 1,
@@ -378,13 +379,13 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     dr.scatter_reduce(dr.ReduceOp.Add, I_sum, I, idx // k)
     I_mean = I_sum * (1.0 / k)
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-    depth = frame.light_distance - rays.r_in
+    depth = scalar(frame.light_distance) - rays.r_in
     if _channels(params) == 1:
         colour = _light_colour(params, frame)
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))
         scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
-        values = [I_mean[c] * scale * light_side_extinction(sigma_t[0], depth)]
+        values = [I_mean[c] * scalar(scale) * light_side_extinction(sigma_t[0], depth)]
     else:
         values = [I_mean[ch] * light_side_extinction(sigma_t[ch], depth) for ch in range(3)]
         colour = mi.Color3f(1.0)
@@ -399,7 +400,7 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
 
 def _eye_beta(frame, p) -> mi.Float:
     """β of world points ``p`` seen from the eye."""
-    eye = mi.Point3f(point(frame.camera.origin))
+    eye = point(frame.camera.origin)
     return direction_to_alpha_beta(frame, mi.Vector3f(p - eye))[1]
 
 
@@ -418,8 +419,7 @@ def trace_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLigh
     if dr.width(idx):
         alpha = dr.gather(mi.Float, queries.alpha, dr.gather(mi.UInt32, s, idx))
         w = light_ray_direction(frame, alpha, dr.gather(mi.Float, gamma, idx))
-        origin = mi.Point3f(*(dr.full(mi.Float, float(c), dr.width(idx))
-                              for c in frame.light_position))
+        origin = point(frame.light_position) + dr.zeros(mi.Vector3f, dr.width(idx))
         hit, p = first_blocker(params, origin, w)
         dr.scatter(out, dr.select(hit, _eye_beta(frame, p), math.pi), idx)
     dr.eval(out)
@@ -429,8 +429,8 @@ def trace_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLigh
 def radial_map_point(frame, alpha, gamma) -> mi.Point3f:
     """Point/spot light: the point of light ray (α, γ) at the eye's distance
     L from the light (where a perspective or cube map looks it up)."""
-    p_l = mi.Point3f(point(frame.light_position))
-    return p_l + light_ray_direction(frame, alpha, gamma) * float(frame.light_distance)
+    p_l = point(frame.light_position)
+    return p_l + light_ray_direction(frame, alpha, gamma) * scalar(frame.light_distance)
 
 
 def radial_blocker_beta(params, frame, shadow_map, alpha, gamma, z_b) -> mi.Float:
@@ -460,6 +460,7 @@ def attenuation_exponent(x, x_max: float, k: float, x_band=None):
         inside = x <= xm
         return (np.where(inside, k * xc / (1.0 - xc), e_max + slope_max * (x - xm)),
                 np.where(inside, k / (1.0 - xc) ** 2, slope_max))
+    k, xm, e_max, slope_max = (scalar(v) for v in (k, xm, e_max, slope_max))
     if x_band is not None:
         xc = dr.minimum(x, dr.minimum(x_band, xm))
         return k * xc / (1.0 - xc), dr.select(x <= xc, k / dr.square(1.0 - xc), 0.0)
@@ -478,6 +479,7 @@ def band_x(tan_half_beta, band_tan: float):
     t = tan_half_beta
     if isinstance(t, np.ndarray) or np.isscalar(t):
         return np.maximum(t * (1.0 - t * band_tan) / np.maximum(t + band_tan, 1e-30), 0.0)
+    band_tan = scalar(band_tan)
     return dr.maximum(t * (1.0 - t * band_tan) / dr.maximum(t + band_tan, 1e-30), 0.0)
 
 
@@ -753,7 +755,7 @@ def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
         lit = dr.full(mi.Bool, True, queries.n)
     gamma_lo = float(dr.min(dr.select(lit, rays.gamma_lo, dr.inf))[0])
     gamma_hi = float(dr.max(dr.select(lit, rays.gamma_max, -dr.inf))[0])
-    seen = dr.gather(mi.Bool, lit, queries.row) & (queries.beta < math.pi - gamma_lo)
+    seen = dr.gather(mi.Bool, lit, queries.row) & (queries.beta < scalar(math.pi - gamma_lo))
     if not dr.any(seen)[0]:
         seen = dr.full(mi.Bool, True, dr.width(queries.beta))
     beta_lo = float(dr.min(dr.select(seen, queries.beta, dr.inf))[0])
@@ -817,7 +819,7 @@ class LocalSeparation:
 
     def light_side_path(self, queries, rays: LocalLightRays):
         """L − r_in: the light side of each light ray (:func:`light_side_extinction`)."""
-        return float(queries.frame.light_distance) - rays.r_in
+        return scalar(queries.frame.light_distance) - rays.r_in
 
     def channel(self, params, queries, rays: LocalLightRays, sigma_t: float, rank: int,
                 tol: float) -> LocalChannel:
@@ -832,7 +834,7 @@ class LocalSeparation:
                             c_b=sigma_t * L * (gamma_hi - gamma_lo))
 
     def kernel_points(self, queries, rays: LocalLightRays):
-        delta = float(rays.delta_gamma[0])
+        delta = dr.gather(mi.Float, rays.delta_gamma, mi.UInt32(0))
         M = rays.lattice_size
         return M, (interval_bounds(mi.Float(dr.arange(mi.UInt32, M)) * delta, delta), delta)
 
@@ -841,8 +843,9 @@ class LocalSeparation:
         M = rays.lattice_size
         j = dr.arange(mi.UInt32, queries.n * rays.d * CN)
         per_ray = j // CN
-        s_row, g = per_ray // rays.d, per_ray % rays.d
-        cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, M - 1)
+        d = dr.opaque(mi.UInt32, rays.d)
+        s_row, g = per_ray // d, per_ray % d
+        cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, dr.opaque(mi.UInt32, M - 1))
         return dr.gather(mi.Float, A_cells, cell * CN + j % CN)
 
 
@@ -911,7 +914,7 @@ def reaches_asymptote_band(queries: EpipolarQueries, rays: LocalLightRays,
     well before its limit angle, and the plain kernel is used."""
     if not band_cells or not queries.count:
         return False
-    delta = float(rays.delta_gamma[0])
+    delta = dr.gather(mi.Float, rays.delta_gamma, mi.UInt32(0))
     near = queries.gamma_end >= (math.pi - queries.beta) - (band_cells + 2) * delta
     return bool(dr.any(near & (queries.beta < math.pi))[0])
 
@@ -935,10 +938,12 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     out = dr.zeros(mi.Color3f, queries.count)
     if not band_cells or not queries.count:
         return out
-    delta = float(rays.delta_gamma[0])
+    delta32 = np.float32(rays.delta_gamma[0])
+    delta = scalar(delta32)
     m_s = mi.Float(dr.gather(mi.UInt32, rays.offset, queries.row))
     k0 = mi.Float(last.k0)
-    j_a = dr.floor((math.pi - queries.beta) / delta - band_cells)
+    # ÷Δγ as Dr.Jit compiles a division by a literal: × its float32 reciprocal
+    j_a = dr.floor((math.pi - queries.beta) * scalar(np.float32(1.0) / delta32) - band_cells)
     g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
     idx = dr.compress((g_a <= k0) & (queries.beta < math.pi))
     if not dr.width(idx):
@@ -995,7 +1000,7 @@ def local_query_terms(params, cap, queries: EpipolarQueries, rays: LocalLightRay
     ``radiance = e^{σt t_near}``, ``view = σs·colour·Δγ / (L sin β)``,
     ``near = V_near ·`` :func:`near_segment`."""
     sigma_t = color(params.medium.sigma_t)
-    L = float(queries.frame.light_distance)
+    L = scalar(queries.frame.light_distance)
     dg = dr.gather(mi.Float, rays.delta_gamma, queries.row)
     view = color(params.medium.sigma_s) * colour * (dg / (L * dr.sin(queries.beta)))
     near = V_near * near_segment(params, cap, queries)

@@ -104,8 +104,8 @@ from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, alpha_to_slice, make_slices
 
 from .capture import CameraCapture, sample_rng, seed_offset
-from .light_transport import (slabs, color, first_blocker, phase_eval, point,
-                              sample_light, segment_box, segment_weight, visible_exact)
+from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light,
+                              scalar, segment_box, segment_weight, vector, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
 from .marching import lit_spacing, march, march_bisected
 
@@ -217,7 +217,7 @@ class EpipolarQueries:
     @property
     def slot(self) -> mi.UInt32:
         """Flat index ``row·r + col`` of each query in (n, r) maps."""
-        return self.row * self.r + self.col
+        return self.row * dr.opaque(mi.UInt32, self.r) + self.col
 
     def padded(self, values, fill: float) -> mi.Float:
         """(n·r,) map with the queries' ``values`` in their slots, ``fill`` elsewhere."""
@@ -283,7 +283,14 @@ def _concat(parts):
     """``dr.concat`` of the non-empty ``parts`` (it refuses empty arrays,
     e.g. when no sample of a 1-pixel image falls between two slices)."""
     parts = [p for p in parts if dr.width(p)]
-    return parts[0] if len(parts) == 1 else dr.concat(parts)
+    if len(parts) == 1:
+        return parts[0]
+    out = dr.empty(type(parts[0]), sum(dr.width(p) for p in parts))
+    offset = 0
+    for p in parts:           # dr.concat would write each offset into its kernel
+        dr.scatter(out, p, dr.arange(mi.UInt32, dr.width(p)) + dr.opaque(mi.UInt32, offset))
+        offset += dr.width(p)
+    return out
 
 
 #: fewest bits of β in the one-key sort of :func:`_sweep_order`
@@ -395,7 +402,8 @@ class LightRayLayout:
         """(row s, light ray g, sub-ray m) of ``n·d·per_ray`` lanes."""
         n = dr.width(self.delta_gamma)
         j = dr.arange(mi.UInt32, n * self.d * per_ray)
-        return j // (self.d * per_ray), (j // per_ray) % self.d, j % per_ray
+        d = dr.opaque(mi.UInt32, self.d)
+        return j // (d * per_ray), (j // per_ray) % d, j % per_ray
 
     def positions(self, offset: float = 0.5):
         """(row, γ) of every light ray at ``offset`` ∈ [0, 1] across its
@@ -504,8 +512,9 @@ def light_side_step(params, rays: LightRays) -> float:
     d = rays.d
     if d < 2:
         return 0.0
-    sigma_t = float(np.max(params.medium.sigma_t))
+    sigma_t = scalar(np.max(params.medium.sigma_t))
     s, g, _ = rays.lanes()
+    d = dr.opaque(mi.UInt32, d)
     nxt = s * d + dr.minimum(g + 1, d - 1)
     h, h_n = rays.h, dr.gather(mi.Float, rays.h, nxt)
     h_ref = dr.gather(mi.Float, rays.h_ref, s)
@@ -524,7 +533,7 @@ def with_box_exits(params, queries: EpipolarQueries, rays):
     frame = queries.frame
     s, gamma = rays.positions(0.5)
     base = light_coords_to_world(frame, _row_alpha(queries, s), gamma, 0.0)
-    h, hits = axial_exit(params, base, mi.Vector3f(*map(float, frame.axis)))
+    h, hits = axial_exit(params, base, vector(frame.axis))
     h = dr.select(hits, h, dr.inf)
     h_ref = row_reference(params, h, s, queries.n)
     dr.eval(h, h_ref)
@@ -558,7 +567,7 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
     h_ref = dr.select(dr.isfinite(h_ref), h_ref, 0.0)
     sigma_t_max = float(np.max(params.medium.sigma_t))
     if sigma_t_max > 0.0:
-        h_ref = dr.maximum(h_ref, -LIGHT_SIDE_RANGE / sigma_t_max)
+        h_ref = dr.maximum(h_ref, scalar(-LIGHT_SIDE_RANGE / sigma_t_max))
     return h_ref
 
 
@@ -633,11 +642,11 @@ def _blocker_depth(params, queries: EpipolarQueries, s, gamma):
     along -w_l (:func:`first_blocker`): whether a blocker is met and its
     axial coordinate."""
     frame = queries.frame
-    U = _light_top(params, frame)
+    U = scalar(_light_top(params, frame))
     origin = light_coords_to_world(frame, _row_alpha(queries, s), gamma, U)
-    w = mi.Vector3f(*map(float, frame.axis))
+    w = vector(frame.axis)
     hit, p = first_blocker(params, origin, -w)
-    u_b = dr.dot(mi.Vector3f(p - mi.Point3f(point(params.camera.origin))), w)
+    u_b = dr.dot(mi.Vector3f(p - point(params.camera.origin)), w)
     return hit, u_b
 
 
@@ -773,7 +782,7 @@ def trace_sub_ray_blockers(params, queries: EpipolarQueries, rays: LightRays, k:
                              dr.gather(mi.Float, gamma, sel))
         dr.scatter(out, sub, sel)
         dr.scatter(lo, 0, sel)
-        dr.scatter(hi, queries.r, sel)
+        dr.scatter(hi, dr.opaque(mi.UInt32, queries.r), sel)
     dr.eval(out, lo, hi)
     return SubRayBlockers(out, lo, hi)
 
@@ -822,15 +831,15 @@ def searchsorted_rows(queries: EpipolarQueries, s, x, lo=None, hi=None) -> mi.UI
     ``lo``/``hi``: known to lie in [lo, hi] (a per-lane bisection that ends
     at once where lo = hi)."""
     beta_pad = queries.padded(queries.beta, PAD_BETA)
-    r = queries.r
+    r = dr.opaque(mi.UInt32, queries.r)
     base = s * r
 
     def pred(i):
         inside = i < r
         return inside & (dr.gather(mi.Float, beta_pad, base + dr.minimum(i, r - 1)) <= x)
 
-    if lo is None:
-        return mi.UInt32(dr.binary_search(0, r, pred))
+    if lo is None:      # a bisection over [0, r] (r opaque: dr.binary_search unrolls it)
+        lo, hi = dr.zeros(mi.UInt32, dr.width(x)), dr.zeros(mi.UInt32, dr.width(x)) + r
 
     def body(a, b):
         mid = (a + b) >> 1
@@ -902,7 +911,7 @@ def light_side_extinction(sigma_t: float, path, ref=None):
     scattering: dropping those beyond c keeps every factor ≤ e^{c}
     (:func:`row_reference`)."""
     rel = path if ref is None else path - ref
-    st = float(sigma_t)
+    st = scalar(sigma_t)
     return dr.select(dr.isfinite(rel) & (-st * path <= LIGHT_SIDE_RANGE), dr.exp(-st * rel), 0.0)
 
 
@@ -1285,7 +1294,7 @@ def directional_query_terms(params, cap: CameraCapture, queries: EpipolarQueries
     dg = dr.gather(mi.Float, rays.delta_gamma, queries.row)
     view = dg / dr.sin(queries.beta) * cell_average(sigma_t * dr.tan(0.5 * queries.beta) * dg)
     h0, _ = axial_exit(params, mi.Point3f(point(params.camera.origin)),
-                        mi.Vector3f(*map(float, queries.frame.axis)))
+                        vector(queries.frame.axis))
     one_minus_cos = 1.0 - dr.dot(omega, wo)
     near = V_near * dr.exp(-sigma_t * (h0 - h_ref)) * segment_weight(sigma_t * one_minus_cos,
                                                                        0.0, queries.t_near)
@@ -1388,7 +1397,7 @@ def disagreeing_samples(queries: EpipolarQueries, values, tolerance: float) -> m
     dr.scatter_reduce(dr.ReduceOp.Max, hi, y, queries.sample)
     dr.scatter_reduce(dr.ReduceOp.Min, lo, y, queries.sample)
     dr.scatter_reduce(dr.ReduceOp.Add, shares, mi.UInt32(1), queries.sample)
-    peak = dr.max(y)[0]
+    peak = dr.max(y)
     spread = hi - lo
     return dr.compress((shares == 2) & (spread > tolerance * hi)
                        & (spread > tolerance * 1e-2 * peak))

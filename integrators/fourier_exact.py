@@ -21,18 +21,20 @@ import mitsuba as mi
 
 from .fourier_setup import ProjectiveLightRays, texel_integral
 from .light_models import light_model
+from .opaque import scalar, scalar_u32
 
 
 def texel_kernel(params, queries, rays, sigma_t: float):
     """``K(texel, tan(β/2))``: a function of (flat texel index, per-lane
     tan(β/2)) giving the kernel of :func:`~integrators.fourier_references.row_kernel`
     for any β (one value per lane): the light model's ``ray_kernel``, or a
-    projective map's texel integral (Eq. 12)."""
+    projective map's texel integral (Eq. 12; σt a kernel parameter)."""
     if isinstance(rays, ProjectiveLightRays):
         s, gamma = rays.positions(0.0)
         widths = rays.widths()
+        sigma = scalar(sigma_t)
         return lambda t, tan: texel_integral(dr.gather(mi.Float, gamma, t),
-                                             dr.gather(mi.Float, widths, t), sigma_t * tan)
+                                             dr.gather(mi.Float, widths, t), sigma * tan)
     return light_model(params).ray_kernel(params, queries, rays, sigma_t)
 
 
@@ -58,8 +60,10 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
     change traced on its own ray
     (:func:`~integrators.fourier_tail.tail_visibility`), which replace the
     map's visibility there.  ``idx``: only these queries (the result has
-    one value per entry of ``idx``; ``active`` then refers to them)."""
-    d = rays.d
+    one value per entry of ``idx``; ``active`` then refers to them).
+    σt and ``d`` enter the kernels as parameters (opaque), not literals."""
+    d = scalar_u32(rays.d)
+    sigma = scalar(sigma_t)
     row, beta, texel, frac = queries.row, queries.beta, cover.texel, cover.frac
     if idx is not None:
         row, beta, texel, frac = (dr.gather(type(x), x, idx) for x in (row, beta, texel, frac))
@@ -72,7 +76,7 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
     geometric = (recurrence and light_model(params).kernel_recurrence
                  and not isinstance(rays, ProjectiveLightRays))
     if geometric:
-        c = sigma_t * tan
+        c = sigma * tan
         k_first = dr.exp(-c * rays.start(row))
         step = dr.exp(-c * dr.gather(mi.Float, rays.delta_gamma, row))
         kernel = None
@@ -109,9 +113,9 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
                 return kernel(t, tq)
             r = dr.gather(mi.UInt32, row, q)
             gamma = rays.start(r) + mi.Float(t - r * d) * dr.gather(mi.Float, rays.delta_gamma, r)
-            return dr.exp(-sigma_t * tq * gamma)
+            return dr.exp(-sigma * tq * gamma)
         for c in range(C):
-            delta = tail.delta(row, texel, frac, beta, beta_b, d,
+            delta = tail.delta(row, texel, frac, beta, beta_b, rays.d,
                                lambda t, q: dr.gather(mi.Float, Ls[c], t) * kernel_at(t, q))
             num[c] += dr.select(active, delta, 0.0)
     return (num, den) if isinstance(L, list) else (num[0], den[0])

@@ -30,6 +30,7 @@ from .capture import capture_shadow_map
 from .epipolar_setup import (LastInterval, LightRays, assemble_queries, auto_light_rays,
                              choose_slices, epipolar_frame_of)
 from .light_models import light_model
+from .opaque import scalar_u32, two_or_more, vector
 from .fourier_basis import check_M, region_length
 from .fourier_exact import exact_sums
 from .fourier_tail import tail_visibility
@@ -601,13 +602,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         (:mod:`integrators.fourier_tail`; ``weights="exact"``, whose
         component filters take no run correction); one pass for all
         channels of a grey medium (their kernel is one);
-        ``stats["exact_fallback"]`` counts the queries."""
+        ``stats["exact_fallback"]`` counts the queries (a single one is
+        summed twice: :func:`~integrators.opaque.two_or_more`)."""
         if tail is not None and with_runs:
             unreliable |= tail.runs()
         idx = dr.compress(unreliable)
         self.record(exact_fallback=dr.width(idx))
         if not dr.width(idx):
             return V
+        idx = two_or_more(idx)
         groups = ([list(range(len(Ls)))] if len(set(sigma_ts)) == 1 else
                   [[c] for c in range(len(Ls))])
         V = [mi.Float(v) for v in V]
@@ -703,6 +706,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             lit = cover.sum(dr.select(smap.lit, parts.L * a, 0.0))
             S += b * (lit + series_sum(smap, cover, w, Vn)
                       - dr.gather(mi.Float, shift, queries.row) * S0)
+            dr.eval(S)          # one component at a time: the same kernels for any rank
         return S, lit_L + S0, cover.sum(parts.L), near_step_weight(series_L, drop)
 
     def to_string(self):
@@ -735,8 +739,8 @@ def far_depth(params, cap) -> float:
     """Largest depth along the optical axis of a camera ray's end point
     (the frustum's far plane for the projective matrix)."""
     cam = params.camera
-    o = mi.Vector3f(*map(float, cam.origin))
-    f = mi.Vector3f(*map(float, cam.forward / np.linalg.norm(cam.forward)))
+    o = vector(cam.origin)
+    f = vector(cam.forward / np.linalg.norm(cam.forward))
     end = mi.Vector3f(cap.o) + cap.omega * cap.d - o
     far = float(dr.max(dr.dot(end, f))[0]) if dr.width(cap.d) else 0.0
     near = cam.near_clip if cam.near_clip > 0 else 1e-4 * params.scene_extent
@@ -806,7 +810,9 @@ class KernelParts:
 
     @staticmethod
     def of(queries, rays, L, A, B, c: int) -> "KernelParts":
-        """Channel ``c`` of L and of A, B (a grey one serves every channel)."""
+        """Channel ``c`` of L and of A, B (a grey one serves every channel);
+        the rank's stride and the component's offset are kernel parameters,
+        so every component (of any rank) reads with the same kernels."""
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
         CL = _channel_count(L, 2)
         L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
@@ -814,21 +820,25 @@ class KernelParts:
             return KernelParts(L_c, [], [])
         C, N = A.shape[2], A.shape[3]
         c = min(c, C - 1)
+        stride = scalar_u32(C * N)
         A_c, B_c = [], []
         for i in range(N):
-            b = dr.gather(mi.Float, B.array, queries.slot * (C * N) + c * N + i)
+            offset = scalar_u32(c * N + i)
+            b = dr.gather(mi.Float, B.array, queries.slot * stride + offset)
             if dr.all(b == 0.0):        # unused component of this channel
                 continue
-            A_c.append(dr.gather(mi.Float, A.array, lanes * (C * N) + c * N + i))
+            A_c.append(dr.gather(mi.Float, A.array, lanes * stride + offset))
             B_c.append(b)
         return KernelParts(L_c, A_c, B_c)
 
     def unshadowed(self, cover: Coverage) -> mi.Float:
         """U(β) = Σ_n B_n(β) Σ_γ L A_n cover: the query's sum without
-        blockers (the closed form of unblocked rows)."""
+        blockers (the closed form of unblocked rows), accumulated one
+        evaluated component at a time: the same kernels for any rank."""
         U = dr.zeros(mi.Float, dr.width(cover.frac))
         for a, b in zip(self.A, self.B):
             U += b * cover.sum(self.L * a)
+            dr.eval(U)
         return U
 
 
@@ -841,7 +851,7 @@ def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
     depth (0: no band, or no separated kernel)."""
     if A is None or not band_cells:
         return dr.zeros(mi.Color3f, queries.count)
-    k0 = cover.texel - queries.row * cover.d
+    k0 = cover.texel - queries.row * scalar_u32(cover.d)
     ones = dr.full(mi.Float, 1.0, queries.count)
     last = LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
     return model.band_correction(params, queries, rays, A, B, L, None, last, band_cells)
@@ -868,7 +878,7 @@ def near_visibility(queries, rays, beta_b) -> mi.Float:
     (:func:`~integrators.epipolar_setup.directional_query_terms`,
     :func:`~integrators.epipolar_local_light.local_query_terms`; a spot
     light's first light ray is the first in its cone, as in epipolar_tree)."""
-    first = dr.gather(mi.Float, beta_b, queries.row * rays.d)
+    first = dr.gather(mi.Float, beta_b, queries.row * scalar_u32(rays.d))
     return dr.select(queries.beta <= first, 1.0, 0.0)
 
 

@@ -47,6 +47,7 @@ import numpy as np
 
 from .fourier_setup import ProjectiveLightRays, query_beta_range, texel_integral
 from .light_models import light_model
+from .opaque import scalar, scalar_u32
 
 #: spacing of the reference rays in s = log(1 + σt tan(β/2) ℓ)
 SPACING = 0.3
@@ -55,15 +56,19 @@ MAX_REFERENCE_RAYS = 16
 
 
 def decay_coordinate(beta, sigma_t: float, length: float):
-    """s(β) = log(1 + σt tan(β/2) ℓ) (module doc), Dr.Jit or NumPy."""
+    """s(β) = log(1 + σt tan(β/2) ℓ) (module doc), Dr.Jit or NumPy; in
+    Dr.Jit σt ℓ is a kernel parameter (opaque), not a literal."""
     if isinstance(beta, np.ndarray) or np.isscalar(beta):
         return np.log1p(sigma_t * length * np.tan(0.5 * np.asarray(beta, np.float64)))
-    return dr.log(1.0 + (sigma_t * length) * dr.tan(0.5 * beta))
+    return dr.log(1.0 + scalar(sigma_t * length) * dr.tan(0.5 * beta))
 
 
 def decay_angle(s, sigma_t: float, length: float):
-    """β(s), the inverse of :func:`decay_coordinate`."""
-    return 2.0 * dr.atan((dr.exp(s) - 1.0) / (sigma_t * length))
+    """β(s), the inverse of :func:`decay_coordinate`; 1/(σt ℓ) is a kernel
+    parameter (opaque), rounded as Dr.Jit rounds a literal divisor (the
+    float32 reciprocal of the float32 value)."""
+    rate = np.float32(sigma_t * length)
+    return 2.0 * dr.atan((dr.exp(s) - 1.0) * scalar(np.float32(1.0) / rate))
 
 
 def auto_reference_rays(span, spacing: float = SPACING, max_rays: int = MAX_REFERENCE_RAYS):
@@ -87,13 +92,14 @@ class ReferenceRays:
     frac: mi.Float        # (Q,) f ∈ [0, 1]: its position toward ray k + 1
 
     def share(self, k: int) -> mi.Float:
-        """(Q,) the weight of reference ray ``k`` in each query's mix."""
-        f = self.frac
+        """(Q,) the weight of reference ray ``k`` in each query's mix
+        (``k`` a kernel parameter: every ray shares one kernel)."""
+        f, k = self.frac, scalar_u32(k)
         return dr.select(self.node == k, 1.0 - f, dr.select(self.node + 1 == k, f, 0.0))
 
     def rows_with(self, k: int) -> mi.Bool:
         """(n,) the rows that have a reference ray ``k``."""
-        return self.counts > k
+        return self.counts > scalar_u32(k)
 
 
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
@@ -101,7 +107,9 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
     """Reference rays equally spaced in s over each row's β range (module
     doc); ``count`` = 0: :func:`auto_reference_rays` per row, else ``count``
     in every row (1: the bisectrix, Klehm's).  σt ℓ ≈ 0 (no decay): the
-    rays are equally spaced in β."""
+    rays are equally spaced in β.  σt, ℓ and ``k`` enter the kernels as
+    parameters; the most rays of any row (a read-back) is the Python loop
+    count of the filters."""
     lo, hi = query_beta_range(queries)
     rate = float(sigma_t) * float(length)
     decays = rate > 1e-6
@@ -120,7 +128,7 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
     last = mi.Float(dr.maximum(counts, 2) - 1)          # intervals of a row (≥ 1)
     beta = []
     for k in range(K):
-        s_k = dr.select(counts > 1, s_lo + span * (k / last), s_lo + 0.5 * span)
+        s_k = dr.select(counts > 1, s_lo + span * (scalar(k) / last), s_lo + 0.5 * span)
         b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
         beta.append(dr.select(span > 0.0, b_k, lo))
     span_q = dr.gather(mi.Float, span, queries.row)
@@ -150,7 +158,7 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
     s, gamma = rays.positions(0.0)
     tan_ref = dr.gather(mi.Float, tan_ref, s)
     if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
-        return texel_integral(gamma, rays.widths(), sigma_t * tan_ref)
+        return texel_integral(gamma, rays.widths(), scalar(sigma_t) * tan_ref)
     kernel = light_model(params).ray_kernel(params, queries, rays, sigma_t)
     return kernel(dr.arange(mi.UInt32, dr.width(gamma)), tan_ref)
 
@@ -159,7 +167,9 @@ def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:
     """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
     that ``weighted_sum(k, rows)`` returns: the shadowed and the unshadowed
     weighted sums of reference ray k, and any further sums of its weights
-    (needed only in the ``rows`` that have one, :meth:`ReferenceRays.rows_with`)."""
+    (needed only in the ``rows`` that have one, :meth:`ReferenceRays.rows_with`).
+    The sums are evaluated one reference ray at a time: the same kernels
+    for any number of rays."""
     out = None
     for k in range(refs.count):
         share = refs.share(k)
@@ -167,6 +177,7 @@ def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:
         if out is None:
             out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
         out = [x + dr.select(share > 0.0, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+        dr.eval(out)
     return tuple(out)
 
 

@@ -84,6 +84,7 @@ from .epipolar_setup import (LightRayLayout, LightRays, cell_average, directiona
 from .fourier_basis import FilteredBasis, filtered_visibility, prefix_filter
 from .kernel_separation import separate_kernel
 from .light_transport import color, segment_weight
+from .opaque import floats, scalar_u32, two_or_more
 
 DEPTH_RANGES = ("slice", "full")
 REFERENCES = ("bisectrix", "optimal")
@@ -161,19 +162,23 @@ class RectifiedShadowMap:
         return dr.width(self.rows)
 
     def z_rows(self) -> mi.TensorXf:
-        """(nf, d) depths of the filtered rows."""
+        """(nf, d) depths of the filtered rows (:meth:`gather_rows`)."""
         return self.gather_rows(self.z)
 
     def gather_rows(self, texel_values) -> mi.TensorXf:
-        """(nf, d) tensor of a texel array restricted to the filtered rows."""
-        d = self.d
-        j = dr.arange(mi.UInt32, self.n_filtered * d)
-        src = dr.gather(mi.UInt32, self.rows, j // d) * d + j % d
-        return mi.TensorXf(dr.gather(mi.Float, texel_values, src), shape=(self.n_filtered, d))
+        """(nf, d) tensor of a texel array restricted to the filtered rows
+        (a single filtered row twice, nf = 2: :func:`~integrators.opaque.two_or_more`;
+        ``frow`` names the first)."""
+        d, d_o = self.d, scalar_u32(self.d)
+        rows = two_or_more(self.rows)
+        nf = dr.width(rows)
+        j = dr.arange(mi.UInt32, nf * d)
+        src = dr.gather(mi.UInt32, rows, j // d_o) * d_o + j % d_o
+        return mi.TensorXf(dr.gather(mi.Float, texel_values, src), shape=(nf, d))
 
 
 def _texel_rows(n: int, d: int) -> mi.UInt32:
-    return dr.arange(mi.UInt32, n * d) // d
+    return dr.arange(mi.UInt32, n * d) // scalar_u32(d)
 
 
 def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> RectifiedShadowMap:
@@ -237,14 +242,14 @@ class Coverage:
 
     @staticmethod
     def of(queries, rays) -> "Coverage":
-        d = rays.d
+        d, d_o = rays.d, scalar_u32(rays.d)
         if isinstance(rays, ProjectiveLightRays):
             D = rays.query_depth(queries)
         else:
             D = dr.gather(mi.Float, rectified_depth(queries, rays).array, queries.slot)
-        D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, float(d))
-        k0 = dr.minimum(mi.UInt32(D), d - 1)
-        return Coverage(d, queries.row * d + k0, D - mi.Float(k0), D - 1.0)
+        D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, mi.Float(d_o))
+        k0 = dr.minimum(mi.UInt32(D), d_o - 1)
+        return Coverage(d, queries.row * d_o + k0, D - mi.Float(k0), D - 1.0)
 
     def sum(self, w) -> mi.Float:
         """Σ_g w_g clip(D − g, 0, 1) per query, ``w`` an (n·d) texel array."""
@@ -408,15 +413,28 @@ class ProjectiveLightRays(LightRayLayout):
         depth); x_end = γ_end cos φ of the query's row, found by bisection
         in the shared edge table."""
         x = queries.gamma_end / dr.gather(mi.Float, self.inv_cos, queries.row)
-        edges = self.x_edges
-        d = self.d
-        k = mi.UInt32(dr.binary_search(
-            0, d, lambda i: dr.gather(mi.Float, edges, dr.minimum(i, d)) <= x))  # first edge > x
-        k = dr.clip(mi.Int32(k) - 1, 0, d - 1)
+        d_o = scalar_u32(self.d)
+        k = first_edge_above(self.x_edges, self.d, x)
+        k = dr.clip(mi.Int32(k) - 1, 0, mi.Int32(d_o) - 1)
         k = mi.UInt32(k)
-        x0 = dr.gather(mi.Float, edges, k)
+        x0 = dr.gather(mi.Float, self.x_edges, k)
         f = (x - x0) / dr.gather(mi.Float, self.x_widths, k)
-        return dr.clip(mi.Float(k) + dr.clip(f, 0.0, 1.0), 0.0, float(d))
+        return dr.clip(mi.Float(k) + dr.clip(f, 0.0, 1.0), 0.0, mi.Float(d_o))
+
+
+def first_edge_above(edges: mi.Float, d: int, x: mi.Float) -> mi.UInt32:
+    """The first index i ∈ [0, d] with edges[i] > x (d if none), by
+    bisection (``dr.binary_search`` with the bounds as kernel parameters:
+    d only sets the number of halvings, d.bit_length() + 1, which the
+    search stops needing once its interval is empty)."""
+    d_o = scalar_u32(d)
+    start, end = dr.zeros(mi.UInt32, dr.width(x)), dr.zeros(mi.UInt32, dr.width(x)) + d_o
+    for _ in range(int(d).bit_length() + 1):
+        middle = (start + end) >> 1
+        below = dr.gather(mi.Float, edges, dr.minimum(middle, d_o)) <= x
+        start = dr.select(below, dr.minimum(middle + 1, end), start)
+        end = dr.select(below, end, middle)
+    return start
 
 
 def query_depth_reference(queries, rays: ProjectiveLightRays) -> np.ndarray:
@@ -435,7 +453,7 @@ def projective_x_range(queries, rows: ProjectiveRows, far_margin: float = 1e-5,
     on their rows, from the start on the near plane (t_near) to the end;
     the map is fitted to it (Klehm fits it to the frustum corners).  x_lo is
     at least ``min_ratio`` x_hi (a camera without near plane)."""
-    inv_cos = mi.Float(rows.inv_cos[np.asarray(queries.slice_index)].astype(np.float32))
+    inv_cos = floats(rows.inv_cos[np.asarray(queries.slice_index)])
     c = dr.gather(mi.Float, inv_cos, queries.row)
     x_start = queries.t_near * dr.sin(queries.beta) / c
     x_end = queries.gamma_end / c
@@ -450,14 +468,14 @@ def projective_light_rays(params, queries, rows: ProjectiveRows,
     each texel centre leaves the medium box toward the light (h; +inf if it
     misses the box), as :func:`~integrators.epipolar_setup.light_ray_grid`."""
     inv_cos64 = rows.inv_cos[np.asarray(queries.slice_index)]
-    inv_cos = mi.Float(inv_cos64.astype(np.float32))
+    inv_cos = floats(inv_cos64)
     e = columns.edges
     rays = ProjectiveLightRays(
         d=columns.d, columns=columns, inv_cos=inv_cos,
-        x_edges=mi.Float(e.astype(np.float32)),
-        x_widths=mi.Float(np.diff(e).astype(np.float32)),
-        gamma_max=mi.Float((inv_cos64 * e[-1]).astype(np.float32)),
-        delta_gamma=mi.Float((inv_cos64 * (e[-1] - e[0]) / columns.d).astype(np.float32)))
+        x_edges=floats(e),
+        x_widths=floats(np.diff(e)),
+        gamma_max=floats(inv_cos64 * e[-1]),
+        delta_gamma=floats(inv_cos64 * (e[-1] - e[0]) / columns.d))
     return with_box_exits(params, queries, rays)
 
 
@@ -537,7 +555,7 @@ def gauss_nodes(rays: ProjectiveLightRays):
     n_g = len(GAUSS_NODES)
     j = dr.arange(mi.UInt32, dr.width(lo) * n_g)
     texel, node = j // n_g, j % n_g
-    node_x = dr.gather(mi.Float, mi.Float(np.asarray(GAUSS_NODES, np.float32)), node)
+    node_x = dr.gather(mi.Float, floats(GAUSS_NODES), node)
     return dr.width(j), dr.gather(mi.Float, lo, texel) + node_x * dr.gather(mi.Float, w, texel)
 
 

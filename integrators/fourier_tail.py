@@ -43,6 +43,7 @@ import mitsuba as mi
 import numpy as np
 
 from .epipolar_setup import EqualLightRays, own_ray_visibility
+from .opaque import scalar_u32, two_or_more
 
 #: longest run of texels behind the last visibility change that is traced
 TAIL_TEXELS = 8
@@ -92,7 +93,8 @@ class TailVisibility:
         q = dr.compress(self.runs())
         if not dr.width(q):
             return out
-        row0 = dr.gather(mi.UInt32, row, q) * d
+        q = two_or_more(q)          # a single query: summed and written twice
+        row0 = dr.gather(mi.UInt32, row, q) * scalar_u32(d)
         last = dr.gather(mi.UInt32, texel, q)
         f = dr.gather(mi.Float, frac, q)
         b = dr.gather(mi.Float, beta, q)
@@ -122,8 +124,7 @@ def tail_runs(queries, beta_b, cover, longest: int = TAIL_TEXELS):
     query's β, searched back at most ``longest + 1`` texels; ``first`` is
     ``NO_RUN`` where the run is longer than ``longest`` or reaches texel 0
     (no change behind the ray's end)."""
-    d = cover.d
-    row0 = queries.row * d
+    row0 = queries.row * scalar_u32(cover.d)
     k0 = cover.texel - row0
     beta = queries.beta
     last = beta <= dr.gather(mi.Float, beta_b, cover.texel)
@@ -165,11 +166,14 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
     if traced == 0:
         return TailVisibility(first, dr.zeros(mi.UInt32, queries.count),
                               dr.zeros(mi.Float, 1), 0, longest)
-    # ``longest`` slots per traced query (its n-th in ``idx``: slots n·longest ...)
+    # ``longest`` slots per traced query (its n-th in ``lanes``: slots
+    # n·longest ...); a single query is traced twice (two_or_more), into
+    # two equal runs, either of which its slot may name
+    lanes = two_or_more(idx)
     slot_of = dr.zeros(mi.UInt32, queries.count)
-    dr.scatter(slot_of, dr.arange(mi.UInt32, traced) * longest, idx)
-    lane = dr.arange(mi.UInt32, traced * longest)
-    q = dr.gather(mi.UInt32, idx, lane // longest)
+    dr.scatter(slot_of, dr.arange(mi.UInt32, dr.width(lanes)) * longest, lanes)
+    lane = dr.arange(mi.UInt32, dr.width(lanes) * longest)
+    q = dr.gather(mi.UInt32, lanes, lane // longest)
     g = dr.gather(mi.UInt32, first, q) + lane % longest
     used = g <= dr.gather(mi.UInt32, k0, q)
     row = dr.gather(mi.UInt32, queries.row, q)

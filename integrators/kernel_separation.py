@@ -96,7 +96,8 @@ def directional_ray_kernel(params, queries, rays, sigma_t: float):
     rays: φ of the interval's mean is common to a row and cancels in a
     weighted average); the directional light model's ``ray_kernel``."""
     _, gamma = rays.positions(0.0)
-    return lambda t, tan: dr.exp(-sigma_t * dr.gather(mi.Float, gamma, t) * tan)
+    neg_st = dr.opaque(mi.Float, -float(sigma_t))
+    return lambda t, tan: dr.exp(neg_st * dr.gather(mi.Float, gamma, t) * tan)
 
 
 def beta_span(queries) -> tuple:
@@ -277,6 +278,7 @@ class DirectionalSeparation:
         if not n or getattr(rays, "h", None) is None:
             return 0.0
         st = kern.sigma_t
+        neg_st = dr.opaque(mi.Float, -float(st))
         row = dr.arange(mi.UInt32, n)
         last = dr.maximum(mi.UInt32(queries.r_count), 1) - 1
         beta_q = queries.padded(queries.beta, 0.0)
@@ -287,29 +289,30 @@ class DirectionalSeparation:
         stride = max(1, -(-d // SUM_CHECK_RAYS))
         m = -(-d // stride)
         lane = dr.arange(mi.UInt32, n * m)
-        s = lane // m
-        ray = s * d + dr.minimum((lane % m) * stride, d - 1)
+        m_o, d_o, stride_o = (dr.opaque(mi.UInt32, v) for v in (m, d, stride))
+        s = lane // m_o
+        ray = s * d_o + dr.minimum((lane % m_o) * stride_o, d_o - 1)
         gamma = dr.gather(mi.Float, gamma_all, ray)
         L = light_side_extinction(st, dr.gather(mi.Float, rays.h, ray),
                                   dr.gather(mi.Float, rays.h_ref, s))
         h_ref = rays.h_ref
-        h_lo = float(dr.min(h_ref)[0])
+        h_lo = dr.min(h_ref)
         a_terms = kern.a_terms(gamma, dr.width(gamma))
         worst, scale = 0.0, 0.0
         for col in (dr.zeros(mi.UInt32, n), last):
-            beta = dr.gather(mi.Float, beta_q, row * r + col)
+            beta = dr.gather(mi.Float, beta_q, row * dr.opaque(mi.UInt32, r) + col)
             tan_half = dr.tan(0.5 * beta)
             b_terms = kern.b_terms(tan_half)
             tan_s = dr.gather(mi.Float, tan_half, s)
             approx = dr.zeros(mi.Float, dr.width(gamma))
             for i in range(kern.N):
                 approx += a_terms[i] * dr.gather(mi.Float, b_terms[i], s)
-            exact = dr.exp(-st * gamma * tan_s)
+            exact = dr.exp(neg_st * gamma * tan_s)
             err = dr.zeros(mi.Float, n)
             tot = dr.zeros(mi.Float, n)
             dr.scatter_reduce(dr.ReduceOp.Add, err, dr.abs(approx - exact) * L, s)
             dr.scatter_reduce(dr.ReduceOp.Add, tot, exact * L, s)
-            w = (dr.exp(-st * (h_ref - h_lo)) * rays.delta_gamma * stride
+            w = (dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma * mi.Float(stride_o)
                  / dr.maximum(dr.sin(beta), 1e-6))
             used = mi.UInt32(queries.r_count) > 0
             worst = max(worst, float(dr.max(dr.select(used, err * w, 0.0))[0]))

@@ -23,13 +23,16 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .opaque import floats, scalar
+
+
 def nystrom_sums(n_lanes: int, weights: np.ndarray, term) -> list:
     """Σ_k term(k) · weights[k, i] per lane, for each column i, in one
     Dr.Jit loop: the exact (Nyström) extension of a separated kernel
     (:func:`integrators.integrand_svd.separate_sampled_kernel`; both light
     kinds); ``term(k)`` gives the lanes' kernel values at grid point k."""
     K, N = weights.shape
-    W = [mi.Float(np.ascontiguousarray(weights[:, i], np.float32)) for i in range(N)]
+    W = [floats(weights[:, i]) for i in range(N)]
     n_k = dr.opaque(mi.UInt32, K)
 
     def body(k, acc):
@@ -52,7 +55,9 @@ def tabulated_terms(x: mi.Float, lo: float, hi: float, c: float,
     ``x`` ∈ [lo, hi]: directly when there are fewer than 4·``KERNEL_TABLE``
     lanes, else from a table uniform in v = log(1 + c·(x − lo)), lerped.
     ``lanes``: the count that decides (default: ``x``'s; a partial render's
-    rows pass the whole frame's, so that they get the full render's values)."""
+    rows pass the whole frame's, so that they get the full render's values).
+    ``lo``, ``c`` and the table's scale enter the lookup as kernel
+    parameters (opaque), not literals: another frame reuses its kernel."""
     if (dr.width(x) if lanes is None else lanes) < 4 * KERNEL_TABLE:
         return terms_at(x)
     lo, hi = float(lo), float(hi)
@@ -61,8 +66,9 @@ def tabulated_terms(x: mi.Float, lo: float, hi: float, c: float,
     if not v_hi > 0.0:
         v_hi = 1e-6
     v_tab = np.linspace(0.0, v_hi, KERNEL_TABLE)
-    values = terms_at(mi.Float(lo + np.expm1(v_tab) / c))
-    u = dr.log(1.0 + c * dr.maximum(x - lo, 0.0)) * ((KERNEL_TABLE - 1) / v_hi)
+    values = terms_at(floats(lo + np.expm1(v_tab) / c))
+    u = (dr.log(1.0 + scalar(c) * dr.maximum(x - scalar(lo), 0.0))
+         * scalar((KERNEL_TABLE - 1) / v_hi))
     i0 = mi.UInt32(dr.clip(dr.floor(u), 0, KERNEL_TABLE - 2))
     f = dr.clip(u - mi.Float(i0), 0.0, 1.0)
     return [dr.lerp(dr.gather(mi.Float, t, i0), dr.gather(mi.Float, t, i0 + 1), f)

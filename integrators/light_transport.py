@@ -21,13 +21,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .opaque import colour as color, point, scalar, vector  # noqa: F401  (frame constants)
+
 #: relative offset used to stop shadow rays short of the medium box.
 BOX_EPS = 1e-4
-
-
-def color(v) -> mi.Color3f:
-    v = np.asarray(v, dtype=np.float64).reshape(-1)
-    return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
 
 def as_color3(value) -> mi.Color3f:
@@ -39,11 +36,6 @@ def as_color3(value) -> mi.Color3f:
     if dr.is_array_v(value) and dr.depth_v(value) > 1 and dr.size_v(value) == 1:
         value = value[0]
     return mi.Color3f(value)
-
-
-def point(v) -> mi.ScalarPoint3f:
-    v = np.asarray(v, dtype=np.float64).reshape(-1)
-    return mi.ScalarPoint3f(float(v[0]), float(v[1]), float(v[2]))
 
 
 def slabs(p, d, bmin, bmax):
@@ -96,7 +88,7 @@ def box_segments(params, t_in, t_out, dist):
     box as a surface.  A segment that never enters the box (``t_out <=
     t_in``) is one piece.  Empty pieces have ``b <= a``; the gaps left
     around the crossings are :func:`crossing_gaps`."""
-    eps = BOX_EPS * params.scene_extent
+    eps = scalar(BOX_EPS * params.scene_extent)
     far = dr.select(dr.isinf(dist), dr.largest(mi.Float), dist * (1 - BOX_EPS))
     miss = t_out <= t_in
     return ((mi.Float(0.0), dr.select(miss, far, t_in - eps)),
@@ -119,7 +111,7 @@ def _gap_hit(params, x, wo, c, far, active):
     side, each stopped by the first surface it meets -- the box itself
     (null BSDF: not a blocker) or a surface in front of it (the forward
     ray's hit first: the backward ray's lies behind the crossing)."""
-    eps = BOX_EPS * params.scene_extent
+    eps = scalar(BOX_EPS * params.scene_extent)
     lo = dr.maximum(c - eps, 0.0)
     hi = dr.minimum(c + eps, far)
     found_any = mi.Bool(False)
@@ -143,7 +135,7 @@ def _near_boundary_bounds(params):
     near = params.surfaces_near_boundary(BOX_EPS * params.scene_extent)
     if near is None:
         return None
-    return mi.Point3f(point(near[0])), mi.Point3f(point(near[1]))
+    return point(near[0]), point(near[1])
 
 
 def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
@@ -191,7 +183,7 @@ def visible_shifted(params, x, wo, dist, active=True):
     blocked, to the other (:func:`visible_confirmed`)."""
     side = dr.cross(wo, mi.Vector3f(*_GENERIC_AXIS))
     side = dr.select(dr.squared_norm(side) > 1e-6, side, dr.cross(wo, mi.Vector3f(1, 0, 0)))
-    shift = dr.normalize(side) * (CRACK_SHIFT * params.scene_extent)
+    shift = dr.normalize(side) * scalar(CRACK_SHIFT * params.scene_extent)
     def clear(y, active):
         # the shifted ray crosses the medium box elsewhere (by shift/sin at
         # grazing incidence: random grazing seeds 19, 74, 140, 283)

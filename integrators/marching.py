@@ -17,8 +17,8 @@ import mitsuba as mi
 import numpy as np
 
 from .capture import sample_rng, seed_offset
-from .light_transport import (color, light_transmittance, phase_eval, sample_light,
-                              segment_box, segment_weight, visible_confirmed,
+from .light_transport import (color, light_transmittance, phase_eval, point, sample_light, scalar,
+                              segment_box, segment_weight, vector, visible_confirmed,
                               visible_exact)
 
 
@@ -85,7 +85,7 @@ def closest_approach(params, cap):
     """(q, t0, b) per camera ray of a point/spot light: q = light − o, the
     ray parameter t0 of its closest point to the light and that distance b
     (r² = b² + (t − t0)² along the ray)."""
-    q = mi.Vector3f(mi.Point3f(*map(float, params.light.position)) - cap.o)
+    q = mi.Vector3f(point(params.light.position) - cap.o)
     t0 = dr.dot(q, cap.omega)
     return q, t0, dr.norm(q - cap.omega * t0)
 
@@ -97,11 +97,11 @@ def _cone_angles(params, omega, q, t0, b, th_a, th_b):
     cos(cutoff)``, R = |(n·a, ω·a)|, φ = atan2(ω·a, n·a): one arc of at
     most π, which meets (−π/2, π/2) without wrapping.  A ray that misses
     the cone gets empty segments (θ_a = θ_b)."""
-    a = mi.Vector3f(*map(float, np.asarray(params.light.spot_axis, np.float64)))
+    a = vector(params.light.spot_axis)
     n = (omega * t0 - q) / b
     p, w = dr.dot(n, a), dr.dot(omega, a)
     R = dr.sqrt(p * p + w * w)
-    cos_c = math.cos(math.radians(params.light.cutoff_angle))
+    cos_c = scalar(math.cos(math.radians(params.light.cutoff_angle)))
     phi = dr.atan2(w, p)
     delta = dr.acos(dr.minimum(cos_c / dr.maximum(R, 1e-30), 1.0)) + CONE_STEP_MARGIN
     lo = dr.clip(phi - delta, th_a, th_b)

@@ -15,6 +15,7 @@ from .capture import capture_shadow_map
 from .minmax.integrate import integrate_samples
 from .minmax.light_rays import light_top, slice_light_rays, texel_count
 from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
+from .opaque import two_or_more
 from .minmax.profiles import PROFILES, profile_settings
 from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial_samples,
                                 inscattering_breaks, interpolate, interpolation_sources,
@@ -287,10 +288,11 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 index = dr.compress(todo)
                 if not dr.width(index):
                     break
-                res = integrate_samples(params, samples, index, rays, tree, table, max_level,
+                lanes = two_or_more(index)
+                res = integrate_samples(params, samples, lanes, rays, tree, table, max_level,
                                         shadow_map)
-                dr.scatter(values, res.L, index)
-                steps += int(dr.sum(res.steps)[0])
+                dr.scatter(values, res.L, lanes)
+                steps += int(dr.sum(res.steps)[0]) * dr.width(index) // dr.width(lanes)
                 if self.refinement != "visibility":
                     break
                 todo = visibility_midpoints(samples, flags, values, self.visibility_threshold)

@@ -311,16 +311,17 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     # cannot act in their slice (γ ≥ d_count, ⌈β⌉ ≥ r_count, NaN β).
     bf = _flat(beta_in, jt.Float)
     bf = dr.select(dr.isnan(bf), dr.inf, bf)
-    beta = jt.Int(dr.ceil(dr.clip(bf, 0.0, float(r))))
+    r_o, d_o = dr.opaque(jt.Int, r), dr.opaque(jt.Int, d)   # a frame's sizes, not literals
+    beta = jt.Int(dr.ceil(dr.clip(bf, 0.0, jt.Float(r_o))))
     weight = dr.ones(jt.Float, dr.width(beta)) if weight_in is None else _flat(weight_in, jt.Float)
     j = dr.arange(jt.Int, n * d * M)
-    s, g = j // (d * M), (j // M) % d
+    s, g = j // (d_o * M), (j // M) % d_o
     acts = (g < dr.gather(jt.Int, d_cnt, s)) & (beta < dr.gather(jt.Int, r_cnt, s))
     weight = dr.select(acts, weight, 0.0)
-    beta = dr.select(weight != 0, beta, r)
+    beta = dr.select(weight != 0, beta, r_o)
     Lf = None if L is None else _flat(L, jt.Float)
     return _Problem(lay, Df, beta, weight, _flat(A, jt.Float), _flat(B, jt.Float), Lf,
-                    r_cnt, d_cnt, dr.opaque(jt.Int, d), dr.opaque(jt.Int, r))
+                    r_cnt, d_cnt, d_o, r_o)
 
 
 def _components(lay: _Layout, budget_per_leaf: int):

@@ -366,7 +366,7 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
 
 
 def filter_model(e1: float, e2: float, fit=None, m2: int | None = None) -> tuple[float, float]:
-    """(F, C) of relMSE = F + C M^k through the probe's errors ``e1`` at
+    r"""(F, C) of relMSE = F + C M^k through the probe's errors ``e1`` at
     M = :data:`FILTER_PROBE`\ [0] and ``e2`` at ``m2`` (default
     :data:`FILTER_PROBE`\ [1]) (module doc)."""
     fit = fit or FIT["fourier_filter"]

@@ -37,6 +37,7 @@ import numpy as np
 from rectify.coords import direction_to_alpha_beta_reference
 
 from .epipolar_setup import EpipolarQueries, end_gamma
+from .light_transport import scalar
 
 #: "no row" in row maps
 NO_ROW = 0xFFFFFFFF
@@ -175,7 +176,7 @@ def frame_choices(queries: EpipolarQueries, rays) -> tuple:
         out += [("lattice", _finite_max(rays.delta_gamma), _finite_min(rays.gamma_lo),
                  int(dr.max(rays.offset)[0])),
                 ("x_max", _finite_max(x)),
-                ("light_side", low(float(queries.frame.light_distance) - rays.r_in))]
+                ("light_side", low(scalar(queries.frame.light_distance) - rays.r_in))]
     else:
         out += [("light_side", low(rays.h))]
     return tuple(out)

@@ -511,9 +511,15 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         themselves (a sequence's partial frames) open their own."""
         record = RenderRecord(seed=scalar_seed(seed))
         token = _RECORD.set(record)
+        expand = dr.expand_threshold()
+        # LLVM's expanded scatter-reductions write the target's size into
+        # the kernel, so a new frame's row or light-ray count would be a new
+        # kernel: reduce with local atomics instead (design: new frames)
+        dr.set_expand_threshold(0)
         try:
             yield record
         finally:
+            dr.set_expand_threshold(expand)
             _RECORD.reset(token)
 
     def _render_layers(self, scene, sensor, seed, spp, samples, moved, known, record, variant):

@@ -27,9 +27,29 @@ def vec3(v) -> mi.Vector3f:
     return mi.Vector3f(const(v[0]), const(v[1]), const(v[2]))
 
 
+#: alignment of the NumPy buffers handed to Dr.Jit (the widest CPU vector)
+ALIGNMENT = 64
+
+
+def aligned(values, dtype) -> np.ndarray:
+    """A contiguous 1-D copy of ``values`` as ``dtype`` at an
+    ``ALIGNMENT``-byte aligned address: on a CPU backend Dr.Jit may read a
+    NumPy array in place, and a kernel that loads it lane by lane records
+    whether its address is aligned, so a new allocation at another
+    alignment would compile a new kernel."""
+    values = np.asarray(values, dtype=dtype).reshape(-1)
+    itemsize = np.dtype(dtype).itemsize
+    buf = np.empty(values.size + ALIGNMENT // itemsize, dtype=dtype)
+    start = (-buf.ctypes.data % ALIGNMENT) // itemsize
+    out = buf[start:start + values.size]
+    out[...] = values
+    return out
+
+
 def floats(values) -> mi.Float:
-    """A NumPy 1-D array as an ``mi.Float`` (float32 on every variant)."""
-    return mi.Float(np.ascontiguousarray(np.asarray(values, dtype=np.float32).ravel()))
+    """A NumPy array (flattened) as an ``mi.Float`` (float32 on every
+    variant), from aligned memory (:func:`aligned`)."""
+    return mi.Float(aligned(values, np.float32))
 
 
 def pixel_centres(width: int, height: int):

@@ -263,9 +263,9 @@ def _first_above(table_np: np.ndarray, table, alpha) -> mi.UInt32:
     starts = lo + width * np.arange(bins)
     first = np.minimum(np.searchsorted(t32, starts, side="right"), n - 1)
     first = np.concatenate([[0], first[:-1]])               # one bin early
-    b = mi.UInt32(dr.clip(dr.floor((alpha - float(lo)) * float(1.0 / width)), 0, bins - 1))
+    b = mi.UInt32(dr.clip(dr.floor((alpha - const(lo)) * const(1.0 / width)), 0, const(bins - 1)))
     i = dr.gather(mi.UInt32, mi.UInt32(first.astype(np.uint32)), b)
-    last = n - 1
+    last = const_u32(n - 1)
 
     def more(i):
         return (i < last) & (dr.gather(mi.Float, table, dr.minimum(i, last)) <= alpha)
@@ -289,13 +289,13 @@ def alpha_to_slice(slices: Slices, alpha):
     if slices.wraps:
         alpha = dr.select(alpha < a0, alpha + 2 * math.pi, alpha)
     idx = _first_above(table_np, table, alpha)
-    k0 = dr.clip(mi.Int32(idx) - 1, 0, n - 2)
+    k0 = dr.clip(mi.Int32(idx) - 1, 0, dr.opaque(mi.Int32, n - 2))
     k0 = mi.UInt32(k0)
     k1 = k0 + 1
     t0, t1 = dr.gather(mi.Float, table, k0), dr.gather(mi.Float, table, k1)
     f = dr.clip((alpha - t0) / dr.maximum(t1 - t0, 1e-12), 0.0, 1.0)
     if slices.wraps:
-        k1 = dr.select(k1 == slices.count, 0, k1)
+        k1 = dr.select(k1 == const_u32(slices.count), 0, k1)
     return k0, k1, f
 
 
@@ -354,7 +354,7 @@ def slice_to_alpha(slices: Slices, s) -> mi.Float:
     n_seg = len(table_np) - 1
     s = mi.Float(s)
     if n_seg < 1:
-        return dr.zeros(mi.Float, dr.width(s)) + float(table_np[0])
+        return dr.zeros(mi.Float, dr.width(s)) + const(table_np[0])
     table = floats(table_np)
     s = dr.clip(s, 0.0, const(n_seg))
     k0 = dr.minimum(mi.UInt32(dr.floor(s)), const_u32(n_seg - 1))

@@ -9,11 +9,11 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from ..light_transport import color, phase_eval
 from .light_rays import SliceLightRays
 from .minmax_tree import MinMaxTree, SliceRays, march_tree
+from ..opaque import floats, vector
 from .section_integral import (PointTable, box_path, directional_section, point_ray,
                                point_section)
 from .slices_and_samples import EpipolarSamples
@@ -29,7 +29,7 @@ class Integrated:
 
 def slice_rays(samples: EpipolarSamples, index: mi.UInt32) -> SliceRays:
     k = dr.gather(mi.UInt32, samples.slice, index)
-    alpha = dr.gather(mi.Float, mi.Float(samples.slices.alpha.astype(np.float32)), k)
+    alpha = dr.gather(mi.Float, floats(samples.slices.alpha), k)
     return SliceRays(k=k, beta=dr.gather(mi.Float, samples.beta, index),
                      t_near=dr.gather(mi.Float, samples.t_near, index),
                      t_end=dr.gather(mi.Float, samples.d, index), alpha=alpha)
@@ -49,7 +49,7 @@ def integrate_samples(params, samples: EpipolarSamples, index: mi.UInt32,
             return shadow_map.visibility(o + omega * t)
     if params.light.kind == "directional":
         path = box_path(params, o, omega)
-        w_l = mi.Vector3f(*map(float, params.light.direction))
+        w_l = vector(params.light.direction)
         F = sigma_s * phase_eval(params, omega, w_l) * color(params.light.radiance)
 
         def section(a, b):

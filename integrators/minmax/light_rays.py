@@ -33,7 +33,8 @@ import numpy as np
 from rectify import EpipolarFrame, light_coords_to_world, view_to_light
 
 from ..epipolar_local_light import cone_interval
-from ..light_transport import color, first_blocker, point, sample_light, segment_box
+from ..light_transport import color, first_blocker, sample_light, segment_box
+from ..opaque import floats, point, scalar, scalar_u32, vector
 from .slices_and_samples import EpipolarSamples
 
 SOURCES = ("traced", "resampled")
@@ -71,11 +72,13 @@ def light_top(params, frame: EpipolarFrame) -> float:
 def sample_gamma_range(samples: EpipolarSamples):
     """(S,) largest γ any used sample's ray reaches in each slice."""
     frame = samples.frame
-    alpha = dr.gather(mi.Float, mi.Float(samples.slices.alpha.astype(np.float32)), samples.slice)
+    alpha = dr.gather(mi.Float, floats(samples.slices.alpha), samples.slice)
     g_end, _ = view_to_light(frame, alpha, samples.beta, samples.t_near + samples.d)
     g_end = dr.select(samples.used, g_end, 0.0)
     out = dr.zeros(mi.Float, samples.slices.count)
-    dr.scatter_reduce(dr.ReduceOp.Max, out, g_end, samples.slice)
+    # Local, not Auto: the LLVM backend's expanded reduction would bake the
+    # slice count into the kernel
+    dr.scatter_reduce(dr.ReduceOp.Max, out, g_end, samples.slice, mode=dr.ReduceMode.Local)
     return np.asarray(out, dtype=np.float64)
 
 
@@ -87,7 +90,7 @@ def texel_layout(params, samples: EpipolarSamples, n: int):
     hi = g_max
     if params.light.kind == "spot":
         c_lo, c_hi, lit = cone_interval(params, samples.frame,
-                                        mi.Float(samples.slices.alpha.astype(np.float32)))
+                                        floats(samples.slices.alpha))
         c_lo, c_hi = np.asarray(c_lo, np.float64), np.asarray(c_hi, np.float64)
         lit = np.asarray(lit, bool)
         lo = np.where(lit, np.clip(c_lo, 0.0, hi), 0.0)
@@ -100,10 +103,11 @@ def texel_gammas(layout_lo, delta, n: int):
     """(slice, γ) of every texel, flat ``k·n + i``."""
     S = len(layout_lo)
     idx = dr.arange(mi.UInt32, S * n)
-    k = idx // n
-    i = idx - k * n
-    lo = dr.gather(mi.Float, mi.Float(layout_lo.astype(np.float32)), k)
-    dg = dr.gather(mi.Float, mi.Float(delta.astype(np.float32)), k)
+    per_slice = scalar_u32(n)
+    k = idx // per_slice
+    i = idx - k * per_slice
+    lo = dr.gather(mi.Float, floats(layout_lo), k)
+    dg = dr.gather(mi.Float, floats(delta), k)
     return k, lo + (mi.Float(i) + 0.5) * dg
 
 
@@ -111,11 +115,9 @@ def texel_rays(frame: EpipolarFrame, alpha, gamma, u_top: float):
     """Origin and unit direction of texel light rays (from the depth origin
     toward the scene)."""
     if frame.is_directional:
-        o = light_coords_to_world(frame, alpha, gamma, u_top)
-        n = dr.width(o.x)
-        ax = frame.axis
-        return o, mi.Vector3f(dr.full(mi.Float, -float(ax[0]), n), dr.full(mi.Float, -float(ax[1]), n),
-                              dr.full(mi.Float, -float(ax[2]), n))
+        o = light_coords_to_world(frame, alpha, gamma, scalar(u_top))
+        w = vector(-np.asarray(frame.axis, dtype=np.float64))
+        return o, dr.zeros(mi.Vector3f, dr.width(o.x)) + w
     p_l = point(frame.light_position)
     w = dr.normalize(mi.Vector3f(light_coords_to_world(frame, alpha, gamma, 1.0) - p_l))
     return dr.zeros(mi.Point3f, dr.width(w.x)) + p_l, w
@@ -153,7 +155,7 @@ def slice_light_rays(params, samples: EpipolarSamples, n: int, source: str = "tr
     lo, delta = texel_layout(params, samples, n)
     u_top = light_top(params, frame) if frame.is_directional else 0.0
     k, gamma = texel_gammas(lo, delta, n)
-    alpha = dr.gather(mi.Float, mi.Float(samples.slices.alpha.astype(np.float32)), k)
+    alpha = dr.gather(mi.Float, floats(samples.slices.alpha), k)
     o, w = texel_rays(frame, alpha, gamma, u_top)
     colour = texel_colour(params, frame, o, w)
     bias = BIAS * params.scene_extent
@@ -183,7 +185,7 @@ def cell_depth_bounds(frame, shadow_map, alpha, gamma, delta, k, u_top, o, w):
     each bounding the taps within half a shadow-map texel,
     :meth:`ShadowMap.depth_bounds`; conservative while a cell spans at most
     two shadow-map texels, which the default ``light_rays`` ensures)."""
-    dg = dr.gather(mi.Float, mi.Float(delta.astype(np.float32)), k)
+    dg = dr.gather(mi.Float, floats(delta), k)
     z_lo = dr.full(mi.Float, dr.inf, dr.width(gamma))
     z_hi = dr.full(mi.Float, -dr.inf, dr.width(gamma))
     for q in range(CELL_PROBES):
@@ -194,7 +196,7 @@ def cell_depth_bounds(frame, shadow_map, alpha, gamma, delta, k, u_top, o, w):
     if frame.is_directional:
         # the shadow map measures depth from its own plane s0 - x·w_l: shift
         # to ours (u_top − u); both grow along −w_l
-        shift = shadow_map.s0 - (float(np.dot(frame.camera.origin, frame.axis)) + u_top)
+        shift = scalar(shadow_map.s0 - (float(np.dot(frame.camera.origin, frame.axis)) + u_top))
         z_lo, z_hi = z_lo - shift, z_hi - shift
     return z_lo, z_hi
 

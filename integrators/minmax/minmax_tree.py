@@ -59,6 +59,7 @@ import numpy as np
 from rectify import EpipolarFrame, ray_meeting_t, view_to_light
 
 from .light_rays import SliceLightRays
+from ..opaque import colour as opaque_colour, floats, scalar
 
 
 #: a node's colour counts as uniform when its min and max agree to this
@@ -232,19 +233,19 @@ class SliceRays:
     alpha: mi.Float
 
 
-def depth_at(frame: EpipolarFrame, rays: SliceRays, u_top: float, t):
+def depth_at(frame: EpipolarFrame, rays: SliceRays, u_top: mi.Float, t):
     """Depth from the light's depth origin of the point ``t`` of each ray."""
     _, u = view_to_light(frame, rays.alpha, rays.beta, rays.t_near + t)
     return (u_top - u) if frame.is_directional else u
 
 
-def depth_range(frame: EpipolarFrame, rays: SliceRays, u_top: float, t_a, t_b):
+def depth_range(frame: EpipolarFrame, rays: SliceRays, u_top: mi.Float, t_a, t_b):
     """(min, max) depth over the ray points ``t ∈ [t_a, t_b]`` (monotone for
     directional light; point/spot: convex, minimum ``h`` at the closest point)."""
     z_a, z_b = depth_at(frame, rays, u_top, t_a), depth_at(frame, rays, u_top, t_b)
     lo, hi = dr.minimum(z_a, z_b), dr.maximum(z_a, z_b)
     if not frame.is_directional:
-        D = float(frame.light_distance)
+        D = scalar(frame.light_distance)
         sb, cb = dr.sincos(rays.beta)
         t_c = D * cb - rays.t_near
         lo = dr.select((t_c > t_a) & (t_c < t_b), D * sb, lo)
@@ -305,10 +306,10 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
     of where the steps go; the march itself is unchanged)."""
     n = light_rays.n
     top = tree.levels - 1 if max_level is None else max(0, min(int(max_level), tree.levels - 1))
-    lo_k = dr.gather(mi.Float, mi.Float(light_rays.gamma_lo.astype(np.float32)), rays.k)
-    dg = dr.gather(mi.Float, mi.Float(light_rays.delta.astype(np.float32)), rays.k)
+    lo_k = dr.gather(mi.Float, floats(light_rays.gamma_lo), rays.k)
+    dg = dr.gather(mi.Float, floats(light_rays.delta), rays.k)
     hi_k = lo_k + n * dg
-    u_top, bias = light_rays.u_top, light_rays.bias
+    u_top, bias = scalar(light_rays.u_top), scalar(light_rays.bias)
     zero = dr.zeros(mi.Float, dr.width(rays.t_end))
     g_s, _ = view_to_light(frame, rays.alpha, rays.beta, rays.t_near)
     g_e, _ = view_to_light(frame, rays.alpha, rays.beta, rays.t_near + rays.t_end)
@@ -399,7 +400,7 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
              dr.zeros(mi.UInt32, width), mi.UInt32(i_first), *counts)
     i, level, L, steps, _, *counts = dr.while_loop(state=state, cond=cond, body=body)
     if tree.constant_colour is not None:
-        L = L * mi.Color3f(*tree.constant_colour)
+        L = L * opaque_colour(tree.constant_colour)
     return MarchResult(L=L, steps=steps, tally=dict(zip(STEP_KINDS, counts)) if tally else None)
 
 

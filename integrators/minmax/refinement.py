@@ -43,6 +43,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..opaque import mean, scalar, scalar_i32, scalar_u32
 from .slices_and_samples import EpipolarSamples
 
 CRITERIA = ("depth", "inscattering", "visibility")
@@ -67,7 +68,7 @@ def _neighbour(samples: EpipolarSamples, values, offset: int, Type=mi.Float):
     """values[s + offset] (clamped into the array; callers mask row ends)."""
     idx = dr.arange(mi.UInt32, samples.size)
     j = mi.Int32(idx) + offset
-    j = mi.UInt32(dr.clip(j, 0, samples.size - 1))
+    j = mi.UInt32(dr.clip(j, 0, scalar_i32(samples.size - 1)))
     return dr.gather(Type, values, j)
 
 
@@ -143,7 +144,7 @@ def inscattering_breaks(samples: EpipolarSamples, unshadowed: mi.Color3f,
     """Breaks of the coarse unshadowed in-scattering (relative to the larger
     of the pair, floored at 1e-3 of the mean so darkness does not refine)."""
     v = luminance(unshadowed)
-    floor = 1e-3 * dr.mean(dr.select(samples.used, v, 0.0))
+    floor = 1e-3 * mean(dr.select(samples.used, v, 0.0))
     scale = dr.maximum(dr.maximum(v, _neighbour(samples, v, +1)), floor)
     return breaks(samples, v, threshold, scale=scale)
 
@@ -160,8 +161,8 @@ def interpolation_sources(samples: EpipolarSamples, flags: mi.Bool) -> Sources:
     s = dr.arange(mi.UInt32, samples.size)
     if n == 0:
         return Sources(lo=s, hi=s, f=dr.zeros(mi.Float, samples.size))
-    lo = dr.gather(mi.UInt32, pos, mi.UInt32(dr.clip(mi.Int32(c) - 1, 0, n - 1)))
-    hi = dr.gather(mi.UInt32, pos, dr.minimum(c, n - 1))
+    lo = dr.gather(mi.UInt32, pos, mi.UInt32(dr.clip(mi.Int32(c) - 1, 0, scalar_i32(n - 1))))
+    hi = dr.gather(mi.UInt32, pos, dr.minimum(c, scalar_u32(n - 1)))
     hi = dr.select(flags | (hi < s), lo, hi)
     lo = dr.select(samples.used, lo, s)
     hi = dr.select(samples.used, hi, s)
@@ -211,8 +212,8 @@ def visibility_midpoints(samples: EpipolarSamples, flags: mi.Bool, values: mi.Co
     va = luminance(dr.gather(mi.Color3f, values, src.lo))
     vb = luminance(dr.gather(mi.Color3f, values, src.hi))
     vmax = dr.maximum(va, vb)
-    floor = 1e-3 * dr.mean(dr.select(flags, luminance(values), 0.0)) \
-        * samples.size / dr.maximum(dr.count(flags), 1)
+    floor = 1e-3 * mean(dr.select(flags, luminance(values), 0.0)) \
+        * scalar(samples.size) / dr.maximum(dr.count(flags), 1)
     split = inner & (dr.abs(va - vb) > threshold * dr.maximum(vmax, floor))
     mid = (src.lo + src.hi) // 2
     out = dr.zeros(mi.Bool, samples.size)

@@ -44,7 +44,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..light_transport import color, phase_eval, point
+from ..light_transport import color, phase_eval
+from ..opaque import floats, point, reciprocal, scalar
 
 #: |k·L| below which ∫ e^{-k s} ds uses its Taylor series
 SERIES_LIMIT = 1e-3
@@ -94,9 +95,9 @@ def box_path(params, o: mi.Point3f, omega: mi.Vector3f) -> BoxPath:
             a.append(mi.Float(NO_EXIT))
             b.append(mi.Float(0.0))
             continue
-        bound = float(hi[i] if w[i] > 0 else lo[i])
-        a.append((bound - o[i]) / float(w[i]))
-        b.append(-omega[i] / float(w[i]))
+        bound, inv_w = scalar(hi[i] if w[i] > 0 else lo[i]), reciprocal(w[i])
+        a.append((bound - o[i]) * inv_w)
+        b.append(-omega[i] * inv_w)
     return BoxPath(a=tuple(a), b=tuple(b))
 
 
@@ -168,7 +169,7 @@ def phase_of_phi(params, phi) -> mi.Color3f:
 
 
 def phase_of_phi_numpy(params, phi: np.ndarray) -> np.ndarray:
-    v = phase_of_phi(params, mi.Float(phi.astype(np.float32))) + dr.zeros(mi.Color3f, len(phi))
+    v = phase_of_phi(params, floats(phi)) + dr.zeros(mi.Color3f, len(phi))
     return np.stack([np.array(v[c], dtype=np.float64) for c in range(3)], axis=1)
 
 
@@ -219,7 +220,7 @@ class PointTable:
 
     def lookup(self, h, phi) -> mi.Color3f:
         u = (dr.clip(phi * (1 / math.pi) + 0.5, 0.0, 1.0) * (self.n_phi - 1) + 0.5) / self.n_phi
-        v = (dr.clip(h * (1 / self.h_max), 0.0, 1.0) * (self.n_h - 1) + 0.5) / self.n_h
+        v = (dr.clip(h * scalar(1 / self.h_max), 0.0, 1.0) * (self.n_h - 1) + 0.5) / self.n_h
         out = self.texture.eval(mi.Point2f(u, v))
         return mi.Color3f(out[0], out[1], out[2])
 
@@ -232,7 +233,7 @@ def point_table(params, resolution: int, h_max: float | None = None) -> PointTab
     h = np.linspace(0.0, h_max, n_h)
     phi = np.linspace(-math.pi / 2, math.pi / 2, n_phi)
     values = point_table_reference(params, h, phi)
-    tex = mi.Texture2f(mi.TensorXf(values.astype(np.float32)), use_accel=False,
+    tex = mi.Texture2f(mi.TensorXf(floats(values), shape=values.shape), use_accel=False,
                        filter_mode=dr.FilterMode.Linear, wrap_mode=dr.WrapMode.Clamp)
     return PointTable(h_max=float(h_max), n_h=n_h, n_phi=n_phi, values=values, texture=tex,
                       params=params)
@@ -257,7 +258,7 @@ MIN_H = 1e-6
 def point_ray(params, o: mi.Point3f, omega: mi.Vector3f) -> PointRay:
     q = mi.Vector3f(point(params.light.position) - o)
     t0 = dr.dot(q, omega)
-    h = dr.maximum(dr.norm(q - omega * t0), MIN_H * params.scene_extent)
+    h = dr.maximum(dr.norm(q - omega * t0), scalar(MIN_H * params.scene_extent))
     return PointRay(h=h, t0=t0)
 
 

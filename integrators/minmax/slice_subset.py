@@ -41,6 +41,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..row_subset import moved_slices, put_rows, same_slices
+from ..opaque import uints
 from .slices_and_samples import EpipolarSamples, SampleLayout
 from .unwarp import pixel_slices
 
@@ -94,14 +95,14 @@ def merged_samples(state: SliceState, part: EpipolarSamples, rows: np.ndarray,
     from ``part`` (their samples traced anew; nothing else of a sample
     depends on the scene's geometry)."""
     full = state.samples
-    d = put_rows(full.d, part.d, mi.UInt32(rows.astype(np.uint32)), full.count)
+    d = put_rows(full.d, part.d, uints(rows), full.count)
     dr.eval(d)
     return replace(full, frame=frame, d=d)
 
 
 def merged_rows(state_values, part_values, rows: np.ndarray, per: int):
     """``state_values`` (``per`` entries per slice) with ``rows`` replaced."""
-    out = put_rows(state_values, part_values, mi.UInt32(rows.astype(np.uint32)), per)
+    out = put_rows(state_values, part_values, uints(rows), per)
     dr.eval(out)
     return out
 

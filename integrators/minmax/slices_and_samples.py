@@ -32,7 +32,8 @@ from rectify import project_direction, slice_segments
 
 from ..capture import first_surface
 from ..epipolar_setup import choose_slices, epipolar_frame_of
-from ..light_transport import box_exit_distance, point
+from ..light_transport import box_exit_distance
+from ..opaque import floats, point, scalar, uints
 
 #: half a pixel: the border the end samples sit on (pixel centres)
 BORDER_SHRINK_PX = 0.5
@@ -92,9 +93,9 @@ def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
     idx = dr.arange(mi.UInt32, S * M)
     k = idx // M
     j = idx - k * M
-    used = j < dr.gather(mi.UInt32, mi.UInt32(on_screen.astype(np.uint32)), k)
-    beta = dr.fma(mi.Float(j), dr.gather(mi.Float, mi.Float(grid.step.astype(np.float32)), k),
-                  dr.gather(mi.Float, mi.Float(grid.start.astype(np.float32)), k))
+    used = j < dr.gather(mi.UInt32, uints(on_screen), k)
+    beta = dr.fma(mi.Float(j), dr.gather(mi.Float, floats(grid.step), k),
+                  dr.gather(mi.Float, floats(grid.start), k))
     w = grid_directions(frame, slices, grid)
     x, y, z = project_direction(frame, w)
     used &= z > 0
@@ -116,7 +117,7 @@ def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
         dr.scatter(omega, ray.d, live)
         dr.scatter(d, dr.minimum(t_surf, t_exit), live)
         dr.scatter(t_near, dr.norm(ray.o - point(cam.origin)), live)
-    ex, ey = (float(v) for v in frame.epipole)
+    ex, ey = (scalar(v) for v in frame.epipole)
     rho = dr.select(used, dr.sqrt(dr.square(x - ex) + dr.square(y - ey)), dr.inf)
     out = EpipolarSamples(frame=frame, slices=slices, grid=grid, used=used, slice=k, beta=beta,
                           o=o, omega=omega, t_near=t_near, d=d, rho=rho,

@@ -7,6 +7,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..light_transport import color, phase_eval
+from ..opaque import vector
 from .section_integral import box_path, directional_section, point_ray, point_section
 from .slices_and_samples import EpipolarSamples
 
@@ -16,7 +17,7 @@ def unshadowed_inscattering(params, samples: EpipolarSamples, table) -> mi.Color
     zero = dr.zeros(mi.Float, samples.size)
     E = color(params.light.radiance)
     if params.light.kind == "directional":
-        w_l = mi.Vector3f(*map(float, params.light.direction))
+        w_l = vector(params.light.direction)
         f_p = phase_eval(params, samples.omega, w_l)
         L = directional_section(sigma_t, box_path(params, samples.o, samples.omega), zero,
                                 samples.d)

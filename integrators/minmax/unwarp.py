@@ -27,12 +27,12 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
 from ..capture import CameraCapture
 from ..marching import auto_spacing, march
+from ..opaque import floats, two_or_more
 from .slices_and_samples import EpipolarSamples
 
 #: default relative depth scale of the bilateral weights (module docstring)
@@ -76,7 +76,7 @@ def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
     beta, k0, k1, f = pixel_slices(samples, pixels)
     if pixels is not None:
         pixel_depth = dr.gather(mi.Float, pixel_depth, pixels)
-    start, step = mi.Float(grid.start.astype(np.float32)), mi.Float(grid.step.astype(np.float32))
+    start, step = floats(grid.start), floats(grid.step)
     inv = 1.0 / (depth_sigma * dr.maximum(dr.abs(pixel_depth), 1e-20))
     taps = []                                   # (flat sample index, bilinear weight)
     for k, w_k in ((k0, 1.0 - f), (k1, f)):
@@ -110,8 +110,9 @@ def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
     idx = dr.compress(todo)
     L = mi.Color3f(L_pixel)
     if dr.width(idx):
-        sub = cap.subset(idx if pixels is None else dr.gather(mi.UInt32, pixels, idx))
+        lanes = two_or_more(idx)
+        sub = cap.subset(lanes if pixels is None else dr.gather(mi.UInt32, pixels, lanes))
         fixed = march(params, sub, steps, shadow_map=shadow_map, spacing=auto_spacing(params))
-        dr.scatter(L, fixed, idx)
+        dr.scatter(L, fixed, lanes)
     return Unwarped(L=L, weight=weight, fixup=idx)
 
