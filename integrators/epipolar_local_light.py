@@ -842,6 +842,7 @@ class LocalSeparation:
         """A[s, g, :] = A_cells[m_s + g, :]."""
         M = rays.lattice_size
         j = dr.arange(mi.UInt32, queries.n * rays.d * CN)
+        CN = dr.opaque(mi.UInt32, CN)
         per_ray = j // CN
         d = dr.opaque(mi.UInt32, rays.d)
         s_row, g = per_ray // d, per_ray % d

@@ -1030,7 +1030,7 @@ def last_leaf(queries: EpipolarQueries, rays, D: mi.TensorXf) -> tuple[mi.UInt32
     sweep's (n, r) depths ``D`` clamped to ``[0, d_count]`` as the sweep
     clamps them (per row where the layout has ``row_counts()``)."""
     d_count = rays.row_counts()
-    d_s = (dr.full(mi.Float, rays.d, queries.count) if d_count is None
+    d_s = (dr.zeros(mi.Float, queries.count) + scalar(rays.d) if d_count is None
            else mi.Float(dr.gather(mi.UInt32, d_count, queries.row)))
     Dq = dr.gather(mi.Float, mi.Float(D.array), queries.slot)
     Dq = dr.clip(dr.select(dr.isnan(Dq), 0.0, Dq), 0.0, d_s)

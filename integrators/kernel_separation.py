@@ -25,6 +25,7 @@ import numpy as np
 from .epipolar_setup import gray, light_side_extinction, light_side_gains
 from .integrand_svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_table import nystrom_sums, tabulated_terms
+from .opaque import scalar_u32
 
 
 # --------------------------------------------------------------------------
@@ -143,14 +144,17 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     tan_half = dr.tan(0.5 * queries.beta)   # only at the queries; padded slots stay 0
     A = dr.zeros(mi.Float, count * C * N)
     B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
-    lane_a = dr.arange(mi.UInt32, count) * (C * N)
-    lane_b = queries.slot * (C * N)
+    CN = scalar_u32(C * N)          # the rank is the frame's: not a literal
+    lane_a = dr.arange(mi.UInt32, count) * CN
+    lane_b = queries.slot * CN
     for c, kern in enumerate(kernels):
         a_terms = kern.a_terms(points, count, lanes=lanes_a)
         b_terms = kern.b_terms(tan_half, lanes=whole.count)
+        dr.eval(a_terms, b_terms)   # all N terms in one pass of each Nyström loop
         for i in range(kern.N):
-            dr.scatter(A, a_terms[i], lane_a + c * N + i)
-            dr.scatter(B, b_terms[i], lane_b + c * N + i)
+            term = scalar_u32(c * N + i)
+            dr.scatter(A, a_terms[i], lane_a + term)
+            dr.scatter(B, b_terms[i], lane_b + term)
     d = rays.d
     if own:
         A = separation.to_rows(A, queries, rays, C * N)

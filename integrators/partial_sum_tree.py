@@ -102,6 +102,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from rectify._dr import aligned
+
 class _VariantTypes:
     """The active variant's Dr.Jit types without AD (the kernels are not
     differentiated), looked up at every use: nothing about the variant is
@@ -179,7 +181,7 @@ def _flat(x, dtype):
     if dr.is_array_v(x):
         return dtype(dr.detach(x.array if dr.is_tensor_v(x) else x))
     np_type = np.float32 if dtype is jt.Float else np.int32
-    return dtype(np.ascontiguousarray(np.asarray(x), dtype=np_type).ravel())
+    return dtype(aligned(x, np_type))
 
 
 def _split_modes(S_modes):
@@ -265,8 +267,9 @@ class _Problem(_Record):
 
 
 def _counts(x, n, default):
+    default = dr.opaque(jt.Int, default)      # a frame's size: not a literal
     if x is None:
-        return dr.full(jt.Int, default, n)
+        return dr.zeros(jt.Int, n) + default
     c = _flat(x, jt.Int)
     if dr.width(c) != n:
         raise ValueError(f"per-slice counts must have length {n}")

@@ -74,6 +74,7 @@ import mitsuba as mi
 
 from . import quality_auto
 from .capture import CameraCapture, capture_camera
+from .opaque import shared_scalars
 from .scene_params import SceneParams
 
 OUTPUTS = ("full", "scattering")
@@ -517,7 +518,8 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         # kernel: reduce with local atomics instead (design: new frames)
         dr.set_expand_threshold(0)
         try:
-            yield record
+            with shared_scalars():
+                yield record
         finally:
             dr.set_expand_threshold(expand)
             _RECORD.reset(token)
