@@ -179,15 +179,72 @@ def inverse_square_factor(approach, lo, hi, t_mid):
     :func:`closest_approach`, None for a directional light, factor 1): the
     factor that turns a light term evaluated at ``t_mid`` into the exact
     integral of its 1/r² over ``[lo, hi]`` (∫ dt / (b² + (t − t0)²) =
-    Δatan / b, as :func:`step_boundaries`' equiangular segments)."""
+    Δθ / b, as :func:`step_boundaries`' equiangular segments).
+
+    Δθ, the angle ``[lo, hi]`` subtends at the light, is one ``atan2`` of
+    the tangent-difference formula, ``atan2(b·(hi − lo), b² + (hi − t0)(lo
+    − t0))``, not the difference of two angles: for a ray nearly parallel
+    to the direction to the light (the light straight behind the camera,
+    b ≪ |t − t0|) both angles lie within float32's spacing (1.2e-7) of
+    π/2, and their difference was 0 (a black pixel at the anti-epipole) or
+    a few of those spacings over a much smaller Δθ.  Below Δθ = 1e-3 the
+    ratio Δθ / (b·(hi − lo)) is its series ``(1 − x²/3) / den``, finite
+    at b = 0 (∫ dt / (t − t0)²)."""
     if approach is None:
         return 1.0
     _, t0, b = approach
-    b = dr.maximum(b, 1e-30)
-    exact = (dr.atan2(hi - t0, b) - dr.atan2(lo - t0, b)) / b
+    span = hi - lo
+    y = b * span
+    den = dr.square(b) + (hi - t0) * (lo - t0)
+    small = (den > 0.0) & (y <= 1e-3 * den)
+    x = y / dr.select(small, den, 1.0)
+    # ratio = ∫_lo^hi dt / r² / (hi − lo)
+    ratio = dr.select(small, (1.0 - x * x * (1.0 / 3.0)) / dr.select(small, den, 1.0),
+                      dr.atan2(y, den) / dr.select(small | (y <= 0.0), 1.0, y))
     r2 = dr.square(b) + dr.square(t_mid - t0)
-    ok = (hi - lo) > 1e-6 * dr.sqrt(r2)
-    return dr.select(ok, exact * r2 / dr.maximum(hi - lo, 1e-30), 1.0)
+    ok = (span > 1e-6 * dr.sqrt(r2)) & (small | (y > 0.0))
+    return dr.select(ok, ratio * r2, 1.0)
+
+
+def _bisection_steps(params, cap, steps, spacing):
+    """t(s) of :func:`step_boundaries` for :func:`march_bisected`, with
+    the angles measured from the ray's start: segment s ends where the
+    ray has swept ``φ = φ_lo + (φ_hi − φ_lo)·s/steps`` at the light,
+    ``t(φ) = |q|² sin φ / (b cos φ + t0 sin φ)`` (q, t0, b:
+    :func:`closest_approach`), and the whole ray subtends ``Θ =
+    atan2(b·d, |q|² − d·t0)``.  The absolute angles of :func:`_steps`
+    (θ = atan2(t − t0, b), t = t0 + b·tan θ) lie within float32's spacing
+    of ±π/2 on a ray nearly parallel to the direction to the light (the
+    light behind the camera, near the anti-epipole): their first and last
+    boundaries then missed 0 and d, or a θ rounded past π/2 sent the last
+    ones back to 0.  Here t(0) = 0 and t(Θ) = d exactly.  ``cone``
+    spacing (spot light): :func:`_cone_angles`' arc relative to the
+    ray's start (its margin, 1e-4, far above their rounding)."""
+    d = cap.d
+    uniform = lambda s: d * (s / steps)            # noqa: E731
+    if spacing == "uniform" or params.light.position is None:
+        return uniform
+    q, t0, b = closest_approach(params, cap)
+    q2 = dr.squared_norm(q)
+    ok = b > 1e-6 * dr.sqrt(q2)          # the ray is resolvably off the light
+    b = dr.select(ok, b, 1.0)
+    whole = dr.atan2(b * d, q2 - d * t0)
+    lo, hi = dr.zeros(mi.Float, dr.width(d)), whole
+    if spacing == "cone" and params.light.kind == "spot":
+        th_a, th_b = dr.atan2(-t0, b), dr.atan2(d - t0, b)
+        c_lo, c_hi = _cone_angles(params, cap.omega, q, t0, b, th_a, th_b)
+        lo = dr.select(c_lo <= th_a, 0.0, dr.clip(c_lo - th_a, 0.0, whole))
+        hi = dr.select(c_hi >= th_b, whole, dr.clip(c_hi - th_a, 0.0, whole))
+        hi = dr.maximum(hi, lo)
+
+    def t_of(s):
+        phi = lo + (hi - lo) * (s / steps)
+        sin_phi, cos_phi = dr.sincos(phi)
+        den = b * cos_phi + t0 * sin_phi          # > 0 on the ray (φ ≤ Θ < π)
+        t = q2 * sin_phi / dr.select(den > 0.0, den, 1.0)
+        t = dr.select((phi >= whole) | (den <= 0.0), d, t)
+        return dr.select(ok, dr.clip(t, 0.0, d), uniform(s))
+    return t_of
 
 
 #: :func:`march_bisected` tests the lit state at the ray's end this fraction
@@ -212,7 +269,7 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     traces per segment."""
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
-    t_of, _ = _steps(params, cap, steps, spacing)
+    t_of = _bisection_steps(params, cap, steps, spacing)
     n_steps = dr.opaque(mi.UInt32, steps)
     n_bis = dr.opaque(mi.UInt32, bisections)
     approach = None if params.light.position is None else closest_approach(params, cap)
