@@ -12,11 +12,11 @@ import mitsuba as mi
 from rectify import ring_mask
 
 from .capture import capture_shadow_map
+from .epipolar_setup import RING_BISECTIONS
 from .minmax.integrate import integrate_samples
 from .minmax.light_rays import light_top, slice_light_rays, texel_count
 from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
-from .opaque import two_or_more
-from .minmax.profiles import PROFILES, profile_settings
+from .minmax.profiles import METHOD_PROFILES, PROFILES, TALK_METHOD, profile_settings
 from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial_samples,
                                 inscattering_breaks, interpolate, interpolation_sources,
                                 visibility_midpoints)
@@ -25,8 +25,10 @@ from .minmax.slice_subset import (SliceState, computed_pixels, dirty_slices, mer
                                   merged_rows, merged_samples)
 from .minmax.slices_and_samples import epipolar_samples, sample_layout, trace_layout
 from .minmax.unscattered import unshadowed_inscattering
-from .minmax.unwarp import DEPTH_SIGMA, fixup, unwarp
+from .minmax.unwarp import (DEPTH_SIGMA, disagreeing_pixels, fixup, frame_peak,
+                            unwarp_taps)
 from .minmax.validate import check_scene
+from .opaque import two_or_more
 from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
 
 
@@ -59,13 +61,22 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
        ``L[h, S]`` in the angle form ``C(h, φ)``).
     5. *Unwarp*: per pixel the two nearest slices × two samples with
        depth-aware (bilateral) weights; pixels whose weight sum is below
-       ``fixup_threshold`` are ray-marched on their own (fix-up pass).
+       ``fixup_threshold`` are ray-marched on their own (fix-up pass), and
+       so are (beyond the talk) those whose blended taps disagree by more
+       than ``remarch_disagreement`` -- a shadow edge or a thin beam runs
+       between them, along the slices, and no blend estimates the pixel --
+       with the epipolar methods' test and exact marcher
+       (:func:`~integrators.epipolar_setup.disagreeing_samples`,
+       :func:`~integrators.epipolar_setup.brute_force`).
 
     ==========================  ================================================
     ``profile``                 ``none`` (default), ``high_quality``,
                                 ``balanced``, ``high_performance``: the talk's
                                 slices / samples / shadow-map sizes for the
-                                image size (explicit properties override)
+                                image size and the talk's method (``depth``
+                                refinement, no disagreement re-march);
+                                ``talk``: its method at the default sizes
+                                (explicit properties override)
     ``slices``                  ``auto`` (default: sinh placement, every pixel
                                 within half a pixel of a slice) or a count
                                 of exit points along the border
@@ -79,8 +90,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                                 this fraction of their pixel distance to it
                                 apart (default 0.25; 0: every
                                 ``initial_step``, no densification)
-    ``refinement``              ``depth`` (default), ``inscattering`` or
-                                ``visibility`` (see :mod:`.minmax.refinement`)
+    ``refinement``              ``visibility`` (default; the profiles:
+                                ``depth``), ``depth`` or ``inscattering``
+                                (see :mod:`.minmax.refinement`)
     ``refinement_threshold``    break threshold (default 0.03)
     ``threshold_mode``          ``relative`` (default) or ``absolute`` (depth)
     ``visibility_threshold``    relative difference of neighbouring results
@@ -103,6 +115,14 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     ``fixup_steps``             steps of the fix-up march (default 128)
     ``ring_degrees``            pixels this close to the epipole join the
                                 fix-up (default 1; 0: none, as the talk)
+    ``remarch_disagreement``    pixels whose blended taps (the two slices ×
+                                two samples the unwarp weighs in) differ by
+                                more than this fraction of the brighter join
+                                the fix-up (default 0.25; the profiles: 1,
+                                never)
+    ``fixup_bisections``        bisections locating the shadow and cone
+                                edges of the fix-up march (traced blockers;
+                                default 4, the epipolar methods' ring)
     ==========================  ================================================
 
     One camera sample per pixel centre (the talk's convention).  The
@@ -111,7 +131,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     """
 
     def read_properties(self, props):
-        self.profile = read_choice(props, "profile", "none", ("none",) + tuple(PROFILES))
+        self.profile = read_choice(props, "profile", "none",
+                                   ("none",) + tuple(PROFILES) + METHOD_PROFILES)
+        method = TALK_METHOD if self.profile != "none" else {}
         slices = props.get("slices", "auto")
         if slices != "auto":
             slices = read_number(props, "slices", 0, minimum=1, maximum=1 << 20, integer=True)
@@ -122,7 +144,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.initial_step = read_number(props, "initial_step", 16, minimum=1, maximum=1 << 16,
                                         integer=True)
         self.epipole_spacing = read_number(props, "epipole_spacing", 0.25, minimum=0.0)
-        self.refinement = read_choice(props, "refinement", "depth", CRITERIA)
+        self.refinement = read_choice(props, "refinement", method.get("refinement", "visibility"),
+                                      CRITERIA)
         self.refinement_threshold = read_number(props, "refinement_threshold", 0.03, minimum=0.0)
         self.threshold_mode = read_choice(props, "threshold_mode", "relative", THRESHOLD_MODES)
         self.visibility_threshold = read_number(props, "visibility_threshold", 0.05, minimum=0.0)
@@ -143,6 +166,11 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.fixup_threshold = read_number(props, "fixup_threshold", 0.05, minimum=0.0)
         self.fixup_steps = read_number(props, "fixup_steps", 128, minimum=1, integer=True)
         self.ring_degrees = read_number(props, "ring_degrees", 1.0, minimum=0.0, maximum=90.0)
+        self.remarch_disagreement = read_number(props, "remarch_disagreement",
+                                                method.get("remarch_disagreement", 0.25),
+                                                minimum=0.0, maximum=1.0)
+        self.fixup_bisections = read_number(props, "fixup_bisections", RING_BISECTIONS,
+                                            minimum=0, maximum=24, integer=True)
         self.explicit = {k for k in ("slices", "samples", "shadowmap_resolution", "light_rays")
                          if k in props}
 
@@ -152,7 +180,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         cam = params.camera
         s = dict(slices=self.slices, samples=self.samples, light_rays=self.light_rays,
                  shadowmap_resolution=self.shadowmap_resolution)
-        if self.profile != "none":
+        if self.profile in PROFILES:
             for key, value in profile_settings(self.profile, cam.width, cam.height).items():
                 if key not in self.explicit:
                     s[key] = value
@@ -168,9 +196,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     def slices_alone(self) -> bool:
         """Whether a slice's values depend on that slice alone (and the
         frame-wide choices of :mod:`.minmax.slice_subset`): traced blockers
-        and the ``depth`` criterion, whose breaks compare neighbours of one
-        slice.  Otherwise a partial render computes the whole frame."""
-        return self.rectification == "traced" and self.refinement == "depth"
+        and the ``depth`` or ``visibility`` criterion, whose breaks compare
+        neighbours of one slice.  Otherwise a partial render computes the whole frame."""
+        return self.rectification == "traced" and self.refinement in ("depth", "visibility")
 
     def scattering(self, params, cap):
         check_scene(params, cap)
@@ -310,14 +338,22 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         """Stages ``unwarp`` and ``fixup`` of the pixels ``pixels`` (None:
         every pixel)."""
         with self.stage("unwarp") as keep:
-            L_pix, weight = unwarp(samples, per_sample, cap.d, self.depth_sigma, pixels)
-            keep.append(L_pix)
+            taps = unwarp_taps(samples, per_sample, cap.d, self.depth_sigma, pixels)
+            keep.append(taps.L)
         with self.stage("fixup") as keep:
             ring = ring_mask(samples.frame, self.ring_degrees) if self.ring_degrees > 0 else None
             if ring is not None and pixels is not None:
                 ring = dr.gather(mi.Bool, ring, pixels)
-            out = fixup(params, cap, L_pix, weight, self.fixup_threshold, self.fixup_steps,
-                        shadow_map, ring, pixels)
+            if ring is None:
+                ring = dr.zeros(mi.Bool, dr.width(taps.weight))
+            disagree = disagreeing_pixels(taps, self.remarch_disagreement,
+                                          frame_peak(samples, per_sample))
+            if dr.width(disagree):
+                ring = mi.Bool(ring)
+                dr.scatter(ring, True, disagree)
+            self.record(remarched=dr.width(disagree))
+            out = fixup(params, cap, taps.L, taps.weight, self.fixup_threshold, self.fixup_steps,
+                        shadow_map, ring, pixels, self.fixup_bisections)
             keep.append(out.L)
         return out
 

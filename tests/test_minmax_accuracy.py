@@ -54,8 +54,11 @@ def test_point_light_in_view_keeps_its_energy(make_scene):
     img, _ = render(scene)
     assert abs(metrics.mean_ratio(img, ref) - 1) < 0.03
     assert metrics.scale_free_relmse(img, ref) < 1e-3
-    flat, _ = render(scene, epipole_spacing=0)
-    assert metrics.scale_free_relmse(img, ref) < 0.1 * metrics.scale_free_relmse(flat, ref)
+    # the densification's own effect, under the talk's depth refinement (the
+    # default visibility refinement resolves the peak with or without it)
+    talk, _ = render(scene, profile="talk")
+    flat, _ = render(scene, profile="talk", epipole_spacing=0)
+    assert metrics.scale_free_relmse(talk, ref) < 0.1 * metrics.scale_free_relmse(flat, ref)
 
 
 def test_unwarp_keeps_a_small_depth_break_apart(make_scene):

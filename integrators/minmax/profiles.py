@@ -5,6 +5,12 @@ table of the talk for the screen size nearest to the render's (2560×1600 on
 a high-end GPU; 1366×768 and 1024×768 share one set).  ``light_rays`` (the
 1D min/max map's texels per slice) follows the shadow-map size, as in the
 talk (``D_ShadowMap × N_Slices``).
+
+Every profile also selects the talk's *method* (:data:`TALK_METHOD`):
+depth-break refinement alone and no re-march of pixels whose blended taps
+disagree.  The plugin's own defaults (profile ``none``) refine by
+visibility and re-march such pixels (correct first); ``talk`` is the talk's
+method at the default (automatic) sizes.
 """
 from __future__ import annotations
 
@@ -16,6 +22,10 @@ TALK_TABLES = {
                   "high_performance": (512, 256, 512)},
 }
 PROFILES = ("high_quality", "balanced", "high_performance")
+#: the talk's method without its sizes
+METHOD_PROFILES = ("talk",)
+#: the method options every profile sets (explicit properties override)
+TALK_METHOD = {"refinement": "depth", "remarch_disagreement": 1.0}
 
 
 def profile_settings(profile: str, width: int, height: int) -> dict:

@@ -43,7 +43,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..opaque import mean, scalar, scalar_i32, scalar_u32
+from ..opaque import mean, scalar_i32, scalar_u32
 from .slices_and_samples import EpipolarSamples
 
 CRITERIA = ("depth", "inscattering", "visibility")
@@ -200,11 +200,21 @@ def interpolate(sources: Sources, values: mi.Color3f, used: mi.Bool) -> mi.Color
     return dr.select(used, dr.lerp(a, b, sources.f), 0.0)
 
 
+def slice_peak(samples: EpipolarSamples, y: mi.Float, active: mi.Bool) -> mi.Float:
+    """Per sample: the largest ``y`` of the ``active`` samples of its slice."""
+    peak = dr.zeros(mi.Float, samples.slices.count)
+    dr.scatter_reduce(dr.ReduceOp.Max, peak, y, samples.slice, active)
+    return dr.gather(mi.Float, peak, samples.slice)
+
+
 def visibility_midpoints(samples: EpipolarSamples, flags: mi.Bool, values: mi.Color3f,
                          threshold: float) -> mi.Bool:
     """New integration samples: the midpoint of every interval between
     neighbouring integration samples whose results differ by more than
-    ``threshold`` relative to the larger (floored at 1e-3 of the mean)."""
+    ``threshold`` relative to the larger (floored at 1e-3 of the brightest
+    integration sample of the slice, so that darkness does not refine: a
+    per-slice floor keeps each slice's samples its own business, as the
+    per-slice partial renders of :mod:`.slice_subset` need)."""
     src = interpolation_sources(samples, flags)
     s = dr.arange(mi.UInt32, samples.size)
     # each interval once: at its first inner sample
@@ -212,8 +222,7 @@ def visibility_midpoints(samples: EpipolarSamples, flags: mi.Bool, values: mi.Co
     va = luminance(dr.gather(mi.Color3f, values, src.lo))
     vb = luminance(dr.gather(mi.Color3f, values, src.hi))
     vmax = dr.maximum(va, vb)
-    floor = 1e-3 * mean(dr.select(flags, luminance(values), 0.0)) \
-        * scalar(samples.size) / dr.maximum(dr.count(flags), 1)
+    floor = 1e-3 * slice_peak(samples, luminance(values), flags)
     split = inner & (dr.abs(va - vb) > threshold * dr.maximum(vmax, floor))
     mid = (src.lo + src.hi) // 2
     out = dr.zeros(mi.Bool, samples.size)

@@ -31,8 +31,9 @@ import mitsuba as mi
 from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
 from ..capture import CameraCapture
+from ..epipolar_setup import brute_force, disagreeing_samples
 from ..marching import auto_spacing, march
-from ..opaque import floats, two_or_more
+from ..opaque import floats, scalar_u32, two_or_more
 from .slices_and_samples import EpipolarSamples
 
 #: default relative depth scale of the bilateral weights (module docstring)
@@ -72,6 +73,31 @@ def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
     row-major indices; None: every pixel, flat row-major): the bilateral
     weights of the module docstring, plain bilinear where the weight sum is
     below ``rectify.MIN_WEIGHT``.  ``pixel_depth``: per pixel of the image."""
+    taps = unwarp_taps(samples, values, pixel_depth, depth_sigma, pixels)
+    return taps.L, taps.weight
+
+
+@dataclass(frozen=True, eq=False)
+class UnwarpTaps:
+    """Per pixel: the unwarped ``L`` and bilateral ``weight`` sum of
+    :func:`unwarp`, and the darkest and brightest (channel sum) of the
+    taps the blend counts (bilateral weight above ``TAP_SHARE`` of the
+    sum; all four where the plain bilinear blend is used)."""
+    L: mi.Color3f = field(repr=False)
+    weight: mi.Float = field(repr=False)
+    darkest: mi.Color3f = field(repr=False)
+    brightest: mi.Color3f = field(repr=False)
+
+
+#: a tap whose bilateral weight is at most this share of the pixel's sum
+#: does not count as blended in (:class:`UnwarpTaps`)
+TAP_SHARE = 1e-3
+
+
+def unwarp_taps(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
+                depth_sigma: float = DEPTH_SIGMA,
+                pixels: mi.UInt32 | None = None) -> UnwarpTaps:
+    """:func:`unwarp` with the extremes of the taps it blends."""
     grid, M = samples.grid, samples.count
     beta, k0, k1, f = pixel_slices(samples, pixels)
     if pixels is not None:
@@ -93,26 +119,102 @@ def unwarp(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Float,
     num = sum(b * v for b, v in zip(bilateral, colours))
     plain = sum(w * v for (_, w), v in zip(taps, colours))
     ok = den >= MIN_WEIGHT
-    return dr.select(ok, num / dr.select(ok, den, 1.0), plain), den
+    L = dr.select(ok, num / dr.select(ok, den, 1.0), plain)
+    # the extremes of the taps blended in
+    lo_y, hi_y = mi.Float(dr.inf), mi.Float(-dr.inf)
+    lo, hi = mi.Color3f(0.0), mi.Color3f(0.0)
+    for (_, w), b, v in zip(taps, bilateral, colours):
+        counts = dr.select(ok, b > TAP_SHARE * den, w > TAP_SHARE)
+        y = v.x + v.y + v.z
+        darker, brighter = counts & (y < lo_y), counts & (y > hi_y)
+        lo, lo_y = dr.select(darker, v, lo), dr.select(darker, y, lo_y)
+        hi, hi_y = dr.select(brighter, v, hi), dr.select(brighter, y, hi_y)
+    none = lo_y > hi_y
+    return UnwarpTaps(L=L, weight=den, darkest=dr.select(none, L, lo),
+                      brightest=dr.select(none, L, hi))
+
+
+@dataclass(frozen=True, eq=False)
+class TapPairs:
+    """Each pixel's darkest and brightest blended tap as the two answers
+    of one camera sample, in the form
+    :func:`~integrators.epipolar_setup.disagreeing_samples` reads
+    (``sample``, ``weight``, ``count``, ``n_samples`` of its
+    ``EpipolarQueries``): query ``2i`` and ``2i+1`` are pixel ``i``'s."""
+    sample: mi.UInt32 = field(repr=False)
+    weight: mi.Float = field(repr=False)
+    n_samples: int
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.sample)
+
+
+def disagreeing_pixels(taps: UnwarpTaps, tolerance: float, peak: mi.Float) -> mi.UInt32:
+    """Pixels (positions in ``taps``) whose blended taps disagree: the
+    darkest and the brightest differ by more than ``tolerance`` of the
+    brighter and by more than ``tolerance``·1e-2 of ``peak`` (the frame's
+    largest channel sum, :func:`frame_peak`), by
+    :func:`~integrators.epipolar_setup.disagreeing_samples`, the test the
+    epipolar template applies to a camera sample's two slices.  A shadow
+    edge or a narrow beam runs between such taps, so their blend estimates
+    neither side: :func:`fixup` ray-marches these pixels.
+
+    ``disagreeing_samples`` takes its peak from the values it is given; a
+    partial render unwarps a subset of the pixels, so the frame's ``peak``
+    rides along as one more (dark, bright) pair, dropped from the answer."""
+    n = dr.width(taps.weight)
+    if not n or tolerance >= 1.0:
+        return dr.zeros(mi.UInt32, 0)
+    pair = dr.arange(mi.UInt32, 2 * n + 2)
+    pixel = pair // 2
+    bright = (pair & 1) == 1
+    at = dr.minimum(pixel, scalar_u32(n - 1))
+    values = dr.select(bright, dr.gather(mi.Color3f, taps.brightest, at),
+                       dr.gather(mi.Color3f, taps.darkest, at))
+    extra = pixel == scalar_u32(n)
+    values = dr.select(extra, dr.select(bright, mi.Color3f(peak * (1.0 / 3.0)), 0.0), values)
+    pairs = TapPairs(sample=pixel, weight=dr.full(mi.Float, 0.5, 2 * n + 2), n_samples=n + 1)
+    found = disagreeing_samples(pairs, values, tolerance)
+    mask = dr.zeros(mi.Bool, n)
+    if dr.width(found):
+        dr.scatter(mask, True, found, found < scalar_u32(n))
+    return dr.compress(mask)
+
+
+def frame_peak(samples: EpipolarSamples, values: mi.Color3f) -> mi.Float:
+    """The largest channel sum of the used samples' ``values``."""
+    return dr.max(dr.select(samples.used, values.x + values.y + values.z, 0.0))
 
 
 def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
           threshold: float, steps: int, shadow_map=None, also=None,
-          pixels: mi.UInt32 | None = None) -> Unwarped:
+          pixels: mi.UInt32 | None = None, bisections: int = 0) -> Unwarped:
     """Re-march the pixels whose bilateral weight is below ``threshold``,
     and those of the mask ``also`` (camera samples of ``cap``: one per
-    pixel, in pixel order).  ``pixels``: the pixels ``L_pixel``, ``weight``
-    and ``also`` hold (None: every pixel); ``fixup`` lists the re-marched
-    ones by their position there."""
+    pixel, in pixel order) or of the index list ``also``.  ``pixels``: the
+    pixels ``L_pixel``, ``weight`` and ``also`` hold (None: every pixel);
+    ``fixup`` lists the re-marched ones by their position there.  Traced
+    blockers (no ``shadow_map``): the epipolar methods' exact marcher
+    (:func:`~integrators.epipolar_setup.brute_force`, its shadow and cone
+    edges located by ``bisections`` bisections); resampled: the shadow
+    map's."""
     todo = weight < threshold
     if also is not None:
-        todo |= also
+        if isinstance(also, mi.UInt32):
+            if dr.width(also):
+                dr.scatter(todo, True, also)
+        else:
+            todo |= also
     idx = dr.compress(todo)
     L = mi.Color3f(L_pixel)
     if dr.width(idx):
         lanes = two_or_more(idx)
         sub = cap.subset(lanes if pixels is None else dr.gather(mi.UInt32, pixels, lanes))
-        fixed = march(params, sub, steps, shadow_map=shadow_map, spacing=auto_spacing(params))
+        if shadow_map is None:
+            fixed = brute_force(params, sub, steps, bisections)
+        else:
+            fixed = march(params, sub, steps, shadow_map=shadow_map,
+                          spacing=auto_spacing(params))
         dr.scatter(L, fixed, lanes)
     return Unwarped(L=L, weight=weight, fixup=idx)
-
