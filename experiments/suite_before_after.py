@@ -98,7 +98,8 @@ def table(rows: list[dict]) -> str:
         return f"{x:.{d}g}"
     out = ["| scene | relMSE before -> after | mean ratio before -> after | max err/peak "
            "before -> after | FLIP before -> after | time before / after [s] | ratio | "
-           "fastest-run ratio | scattering ratio |", "|---|---|---|---|---|---|---|---|---|"]
+           "fastest-run ratio | scattering ratio | after image = before |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
     by = {}
     for r in rows:
         by.setdefault(r["scene"], {})[r["version"]] = r
@@ -109,7 +110,8 @@ def table(rows: list[dict]) -> str:
                    f"{f(a['max_err_over_peak'])} | {b['flip']:.4f} -> {a['flip']:.4f} | "
                    f"{b['time_s']:.2f} / {a['time_s']:.2f} | {a['time_s'] / b['time_s']:.2f} | "
                    f"{a.get('time_min_s', nan) / b.get('time_min_s', nan):.2f} | "
-                   f"{a['scattering_s'] / b['scattering_s']:.2f} |")
+                   f"{a['scattering_s'] / b['scattering_s']:.2f} | "
+                   f"{'yes' if a.get('identical') else 'no'} |")
     return "\n".join(out)
 
 
@@ -128,6 +130,9 @@ def main(argv=None):
                    help="properties of the after version's renders, e.g. "
                         "'{\"remarch_disagreement\": 1.0}' (default: its defaults)")
     p.add_argument("--props", default="{}", help=argparse.SUPPRESS)
+    p.add_argument("--against-before", action="store_true",
+                   help="judge the after image against the before image (no reference: "
+                        "is the image unchanged?) instead of the exact reference")
     p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "results/stability"))
     args = p.parse_args(argv)
     width, height = (int(x) for x in args.size.lower().split("x"))
@@ -138,14 +143,21 @@ def main(argv=None):
         return
     if not args.before:
         p.error("--before TREE is required")
+    import numpy as np
+
     rows = []
     for i, scene in enumerate(args.scenes):
-        ref = reference_of(scene, width, height)
+        ref = None if args.against_before else reference_of(scene, width, height)
         order = [("before", args.before), ("after", args.after)]
+        done = {}
         for version, tree in (order if i % 2 == 0 else order[::-1]):
             props = json.loads(args.after_props) if version == "after" else None
-            r, image = run_tree(tree, scene, args.repeats, args.method, args.size, props)
-            r = {**r, **judged(image, ref), "version": version, "tree": tree}
+            done[version] = run_tree(tree, scene, args.repeats, args.method, args.size, props)
+        for version, tree in order:
+            r, image = done[version]
+            r = {**r, **judged(image, done["before"][1] if ref is None else ref),
+                 "identical": bool(np.array_equal(image, done["before"][1])),
+                 "version": version, "tree": tree}
             print(json.dumps(r), flush=True)
             rows.append(r)
     out = Path(args.out)
@@ -153,9 +165,13 @@ def main(argv=None):
     (out / "suite_before_after.json").write_text(json.dumps(rows, indent=1))
     text = "\n\n".join([
         f"# {args.method} at its defaults on the suite, before and after",
-        f"{width}x{height}, 1 spp at **pixel centres**, both versions against the exact "
-        "working reference of the tree running the script (by default the after tree) (raymarch visibility=exact, 2048 steps, 12 boundary "
-        "bisections, crack confirmation; cached). Scale-free relMSE (eps 1e-2 x "
+        f"{width}x{height}, 1 spp at **pixel centres**, "
+        + ("the after image against the before image (errors 0 and 'identical': unchanged). "
+           if args.against_before else
+           "both versions against the exact working reference of the tree running the script "
+           "(by default the after tree) (raymarch visibility=exact, 2048 steps, 12 boundary "
+           "bisections, crack confirmation; cached). ")
+        + "Scale-free relMSE (eps 1e-2 x "
         "mean(ref)^2), mean ratio, max |error| / reference peak, HDR-FLIP; end-to-end and "
         f"scattering time: median of {args.repeats} warm runs (and the ratio of the fastest runs), OPENBLAS_NUM_THREADS=1, the two "
         "versions in alternating processes per scene (experiments.suite_before_after). "
