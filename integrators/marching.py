@@ -54,30 +54,22 @@ def _steps(params, cap, steps, spacing):
     """(t(s), inverse-square correction c(s)) of :func:`step_boundaries`.
     ``c(s, offset)`` turns segment s's ``Δt / r²`` at the point the light
     is evaluated (``s + offset``) into the exact ``∫ dt / r² = Δθ / b``
-    (equiangular; 1 for uniform segments): at the ends of a ray that passes
-    close to the light, where θ → ±π/2, one value of 1/r² is far from the
-    segment's mean."""
-    d = cap.d
-    uniform = lambda s: d * (s / steps)            # noqa: E731
+    (:func:`inverse_square_factor`; 1 for uniform segments): at the ends of
+    a ray that passes close to the light, where θ → ±π/2, one value of 1/r²
+    is far from the segment's mean.  The boundaries are
+    :func:`_bisection_steps`' angles swept from the ray's start, which stay
+    exact on a ray nearly parallel to the direction to the light (the
+    light behind the camera, at the anti-epipole)."""
+    t_of = _bisection_steps(params, cap, steps, spacing)
     if spacing == "uniform" or params.light.position is None:
-        return uniform, lambda s, offset: 1.0
-    q, t0, b = closest_approach(params, cap)
+        return t_of, lambda s, offset: 1.0
+    approach = closest_approach(params, cap)
+    q, _, b = approach
     ok = b > 1e-6 * dr.norm(q)          # the ray is resolvably off the light
-    b = dr.select(ok, b, 1.0)
-    th_a, th_b = dr.atan2(-t0, b), dr.atan2(d - t0, b)
-    if spacing == "cone" and params.light.kind == "spot":
-        th_a, th_b = _cone_angles(params, cap.omega, q, t0, b, th_a, th_b)
-
-    def t_of(s):
-        t = t0 + b * dr.tan(th_a + (th_b - th_a) * (s / steps))
-        return dr.select(ok, dr.clip(t, 0.0, d), uniform(s))
 
     def correction(s, offset):
-        t1, t2 = t_of(s), t_of(s + 1)
-        tm = t0 + b * dr.tan(th_a + (th_b - th_a) * ((s + offset) / steps))
-        r2 = dr.square(b) + dr.square(tm - t0)
-        c = (th_b - th_a) / steps / b * r2 / dr.maximum(t2 - t1, 1e-30)
-        return dr.select(ok & (t2 > t1), c, 1.0)
+        factor = inverse_square_factor(approach, t_of(s), t_of(s + 1), t_of(s + offset))
+        return dr.select(ok, factor, 1.0)
     return t_of, correction
 
 

@@ -85,3 +85,23 @@ def test_methods_with_light_behind_camera(behind, method):
     for ref in (exact, uniform):
         assert max_error_over_peak(img, ref) <= 0.5
         assert scale_free_relmse(img, ref) <= 1e-2
+
+
+@pytest.mark.parametrize("offset", [1.7e-6, 1.7e-5, 1.7e-4])
+def test_midpoint_marcher_with_light_just_off_the_anti_epipole(offset):
+    """The plain midpoint march (``raymarch`` at its defaults, equiangular
+    steps; the ring with ``ring_bisections=0``) on a ray that passes
+    ``offset`` rad from the direction away from a point light behind the
+    camera: its step boundaries and inverse-square correction were
+    differences of angles within float32's spacing of π/2 there (0.33–0.93
+    of the peak)."""
+    o, fwd = _axis()
+    side = np.cross(fwd, [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    pos = o - 0.6 * (fwd + offset * side)
+    light = {"type": "point", "position": pos.tolist(), "intensity": 10}
+    scene = mi.load_dict(scene_dict(light=light, res=RES, camera=CAMERA))
+    uniform = _render(scene, "raymarch", visibility="exact", steps=4096, spacing="uniform")
+    img = _render(scene, "raymarch", visibility="exact")
+    assert max_error_over_peak(img, uniform) <= 0.05
+    assert scale_free_relmse(img, uniform) <= 1e-2
