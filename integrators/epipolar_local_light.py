@@ -100,6 +100,7 @@ from .kernel_separation import SeparatedChannel
 from .kernel_table import nystrom_sums, tabulated_terms
 from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, scalar,
                               segment_box, segment_weight, vector)
+from .opaque import Divisor
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
 CONE_MARGIN = 1e-4
@@ -842,12 +843,10 @@ class LocalSeparation:
         """A[s, g, :] = A_cells[m_s + g, :]."""
         M = rays.lattice_size
         j = dr.arange(mi.UInt32, queries.n * rays.d * CN)
-        CN = dr.opaque(mi.UInt32, CN)
-        per_ray = j // CN
-        d = dr.opaque(mi.UInt32, rays.d)
-        s_row, g = per_ray // d, per_ray % d
+        per_ray, c = Divisor(CN).divmod(j)
+        s_row, g = Divisor(rays.d).divmod(per_ray)
         cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, dr.opaque(mi.UInt32, M - 1))
-        return dr.gather(mi.Float, A_cells, cell * CN + j % CN)
+        return dr.gather(mi.Float, A_cells, cell * dr.opaque(mi.UInt32, CN) + c)
 
 
 # --------------------------------------------------------------------------

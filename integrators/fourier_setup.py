@@ -84,7 +84,7 @@ from .epipolar_setup import (LightRayLayout, LightRays, cell_average, directiona
 from .fourier_basis import FilteredBasis, filtered_visibility, prefix_filter
 from .kernel_separation import separate_kernel
 from .light_transport import color, segment_weight
-from .opaque import floats, scalar_u32, two_or_more
+from .opaque import Divisor, floats, scalar_u32, two_or_more
 
 DEPTH_RANGES = ("slice", "full")
 REFERENCES = ("bisectrix", "optimal")
@@ -169,16 +169,16 @@ class RectifiedShadowMap:
         """(nf, d) tensor of a texel array restricted to the filtered rows
         (a single filtered row twice, nf = 2: :func:`~integrators.opaque.two_or_more`;
         ``frow`` names the first)."""
-        d, d_o = self.d, scalar_u32(self.d)
+        d, d_o = self.d, Divisor(self.d)
         rows = two_or_more(self.rows)
         nf = dr.width(rows)
-        j = dr.arange(mi.UInt32, nf * d)
-        src = dr.gather(mi.UInt32, rows, j // d_o) * d_o + j % d_o
+        row, col = d_o.divmod(dr.arange(mi.UInt32, nf * d))
+        src = dr.gather(mi.UInt32, rows, row) * d_o.d + col
         return mi.TensorXf(dr.gather(mi.Float, texel_values, src), shape=(nf, d))
 
 
 def _texel_rows(n: int, d: int) -> mi.UInt32:
-    return dr.arange(mi.UInt32, n * d) // scalar_u32(d)
+    return Divisor(d).div(dr.arange(mi.UInt32, n * d))
 
 
 def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> RectifiedShadowMap:
@@ -574,7 +574,7 @@ def texel_separated_kernel(model, params, queries, rays: ProjectiveLightRays, ra
     n_g = len(GAUSS_NODES)
     CN = C * N
     j = dr.arange(mi.UInt32, n * d * CN)
-    texel, cn = j // CN, j % CN
+    texel, cn = Divisor(CN).divmod(j)
     flat = mi.Float(A3.array)
     A = dr.zeros(mi.Float, n * d * CN)
     for g, wg in enumerate(GAUSS_WEIGHTS):

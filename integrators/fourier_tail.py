@@ -43,7 +43,7 @@ import mitsuba as mi
 import numpy as np
 
 from .epipolar_setup import EqualLightRays, own_ray_visibility
-from .opaque import scalar_u32, two_or_more
+from .opaque import Divisor, scalar_u32, two_or_more
 
 #: longest run of texels behind the last visibility change that is traced
 TAIL_TEXELS = 8
@@ -170,11 +170,13 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
     # n·longest ...); a single query is traced twice (two_or_more), into
     # two equal runs, either of which its slot may name
     lanes = two_or_more(idx)
+    per = Divisor(longest)          # slots per query (the frame's: opaque)
     slot_of = dr.zeros(mi.UInt32, queries.count)
-    dr.scatter(slot_of, dr.arange(mi.UInt32, dr.width(lanes)) * longest, lanes)
+    dr.scatter(slot_of, dr.arange(mi.UInt32, dr.width(lanes)) * per.d, lanes)
     lane = dr.arange(mi.UInt32, dr.width(lanes) * longest)
-    q = dr.gather(mi.UInt32, lanes, lane // longest)
-    g = dr.gather(mi.UInt32, first, q) + lane % longest
+    run, offset = per.divmod(lane)
+    q = dr.gather(mi.UInt32, lanes, run)
+    g = dr.gather(mi.UInt32, first, q) + offset
     used = g <= dr.gather(mi.UInt32, k0, q)
     row = dr.gather(mi.UInt32, queries.row, q)
     covered = dr.select(g == dr.gather(mi.UInt32, k0, q), dr.gather(mi.Float, cover.frac, q),

@@ -25,7 +25,7 @@ import numpy as np
 from .epipolar_setup import gray, light_side_extinction, light_side_gains
 from .integrand_svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_table import nystrom_sums, tabulated_terms
-from .opaque import scalar_u32
+from .opaque import Divisor, scalar_u32
 
 
 # --------------------------------------------------------------------------
@@ -150,7 +150,7 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     for c, kern in enumerate(kernels):
         a_terms = kern.a_terms(points, count, lanes=lanes_a)
         b_terms = kern.b_terms(tan_half, lanes=whole.count)
-        dr.eval(a_terms, b_terms)   # all N terms in one pass of each Nyström loop
+        dr.eval(a_terms)            # all N terms in one pass of the Nyström loop
         for i in range(kern.N):
             term = scalar_u32(c * N + i)
             dr.scatter(A, a_terms[i], lane_a + term)
@@ -293,9 +293,9 @@ class DirectionalSeparation:
         stride = max(1, -(-d // SUM_CHECK_RAYS))
         m = -(-d // stride)
         lane = dr.arange(mi.UInt32, n * m)
-        m_o, d_o, stride_o = (dr.opaque(mi.UInt32, v) for v in (m, d, stride))
-        s = lane // m_o
-        ray = s * d_o + dr.minimum((lane % m_o) * stride_o, d_o - 1)
+        d_o, stride_o = (dr.opaque(mi.UInt32, v) for v in (d, stride))
+        s, piece = Divisor(m).divmod(lane)
+        ray = s * d_o + dr.minimum(piece * stride_o, d_o - 1)
         gamma = dr.gather(mi.Float, gamma_all, ray)
         L = light_side_extinction(st, dr.gather(mi.Float, rays.h, ray),
                                   dr.gather(mi.Float, rays.h_ref, s))

@@ -79,6 +79,40 @@ def _components(v) -> list:
     return [scalar(c) for c in np.asarray(v, dtype=np.float64).reshape(-1)[:3]]
 
 
+class Divisor:
+    """Division of non-negative 32-bit lanes by a frame's count ``d`` (≥ 1),
+    the divisor a kernel parameter: a vector division by a value the
+    compiler does not know is done lane by lane (a literal divisor is a
+    multiply and shifts), so the multiplier and shifts of Granlund and
+    Montgomery's method ("Division by invariant integers using
+    multiplication", 1994) are computed here and passed opaque:
+    ``q = (t + ((n − t) >> s1)) >> s2``, ``t = mulhi(m, n)``, exact for
+    every 32-bit ``n``."""
+
+    def __init__(self, d: int):
+        d = int(d)
+        if not 1 <= d < (1 << 32):
+            raise ValueError(f"divisor {d} out of the 32-bit range")
+        l = (d - 1).bit_length()              # ⌈log2 d⌉
+        self.value = d
+        self.d = scalar_u32(d)
+        self.m = scalar_u32(((1 << 32) * ((1 << l) - d)) // d + 1)
+        self.s1 = scalar_u32(min(l, 1))
+        self.s2 = scalar_u32(max(l - 1, 0))
+
+    def div(self, n):
+        """⌊n / d⌋ (UInt32 lanes; Int32 lanes must be ≥ 0 and come back Int32)."""
+        if dr.type_v(n) != dr.VarType.UInt32:
+            return type(n)(self.div(mi.UInt32(n)))
+        t = dr.mul_hi(self.m, n)
+        return (t + ((n - t) >> self.s1)) >> self.s2
+
+    def divmod(self, n):
+        """(⌊n / d⌋, n mod d)."""
+        q = self.div(n)
+        return q, n - q * type(n)(self.d)
+
+
 def vector(v) -> mi.Vector3f:
     """An opaque ``mi.Vector3f`` holding the NumPy 3-vector ``v``."""
     return mi.Vector3f(*_components(v))

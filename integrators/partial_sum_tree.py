@@ -104,6 +104,8 @@ import numpy as np
 
 from rectify._dr import aligned
 
+from .opaque import Divisor
+
 class _VariantTypes:
     """The active variant's Dr.Jit types without AD (the kernels are not
     differentiated), looked up at every use: nothing about the variant is
@@ -318,7 +320,7 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     beta = jt.Int(dr.ceil(dr.clip(bf, 0.0, jt.Float(r_o))))
     weight = dr.ones(jt.Float, dr.width(beta)) if weight_in is None else _flat(weight_in, jt.Float)
     j = dr.arange(jt.Int, n * d * M)
-    s, g = j // (d_o * M), (j // M) % d_o
+    s, g = Divisor(d * M).div(j), Divisor(d).divmod(j // M)[1]
     acts = (g < dr.gather(jt.Int, d_cnt, s)) & (beta < dr.gather(jt.Int, r_cnt, s))
     weight = dr.select(acts, weight, 0.0)
     beta = dr.select(weight != 0, beta, r_o)

@@ -34,7 +34,7 @@ from rectify import EpipolarFrame, light_coords_to_world, view_to_light
 
 from ..epipolar_local_light import cone_interval
 from ..light_transport import color, first_blocker, sample_light, segment_box
-from ..opaque import floats, point, scalar, scalar_u32, vector
+from ..opaque import Divisor, floats, point, scalar, vector
 from .slices_and_samples import EpipolarSamples
 
 SOURCES = ("traced", "resampled")
@@ -103,9 +103,7 @@ def texel_gammas(layout_lo, delta, n: int):
     """(slice, γ) of every texel, flat ``k·n + i``."""
     S = len(layout_lo)
     idx = dr.arange(mi.UInt32, S * n)
-    per_slice = scalar_u32(n)
-    k = idx // per_slice
-    i = idx - k * per_slice
+    k, i = Divisor(n).divmod(idx)
     lo = dr.gather(mi.Float, floats(layout_lo), k)
     dg = dr.gather(mi.Float, floats(delta), k)
     return k, lo + (mi.Float(i) + 0.5) * dg
