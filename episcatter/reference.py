@@ -77,6 +77,11 @@ def default_cache_dir() -> str:
     return os.path.join(os.path.expanduser("~"), ".cache", "episcatter", "references")
 
 
+#: settings that mark a version of the reference in its cache key but are
+#: no property of the integrator (the behaviour is always on)
+KEY_ONLY = ("crack_confirmation",)
+
+
 def _kind_settings(kind: str, steps: int | None) -> dict:
     """The settings of a reference kind that change the image (part of the key)."""
     if kind == "volpath":
@@ -220,7 +225,7 @@ def exact_props(steps: int | None = None) -> dict:
     """The ``raymarch`` properties of the ``exact`` kind (what a script that
     renders the working reference itself should pass)."""
     settings = _kind_settings("exact", steps)
-    return {k: v for k, v in settings.items() if k != "integrator"}
+    return {k: v for k, v in settings.items() if k not in ("integrator",) + KEY_ONLY}
 
 
 def reference_integrator(scene, kind: str, steps: int | None = None):
@@ -233,7 +238,7 @@ def reference_integrator(scene, kind: str, steps: int | None = None):
         integ = make_integrator("volpath", {"max_depth": 2})
         return integ, "fresh", "a fresh volpath (max_depth=2); the scene's integrator was " \
             f"{own.class_name() if own is not None else 'none'}"
-    props = {k: v for k, v in settings.items() if k != "integrator"}
+    props = exact_props(steps)
     integ = make_integrator("raymarch", props)
     return integ, "fresh", exact_description(props["steps"])
 

@@ -63,6 +63,7 @@ integrator cannot wrap them: use the film's AOVs) and no derivatives
 from __future__ import annotations
 
 import contextvars
+import difflib
 import math
 import time
 from collections.abc import Mapping
@@ -111,6 +112,10 @@ class RenderRecord:
     #: samples it marches anyway (one march: ``remarch_disagreeing``)
     march: list = field(default_factory=list)
 
+
+#: Dr.Jit's expand threshold during a render: 0, reductions with local
+#: atomics (an expanded reduction writes its target's size into the kernel)
+SCATTER_EXPAND_THRESHOLD = 0
 
 #: the record of the render running in this thread/context
 _RECORD: contextvars.ContextVar = contextvars.ContextVar("episcatter_render_record")
@@ -189,6 +194,28 @@ def read_bool(props, name: str, default: bool) -> bool:
                          f"(<boolean name=\"{name}\" value=\"true\"/>, or one of "
                          f"{sorted(BOOL_STRINGS)}).")
     return value
+
+
+def check_unknown_properties(props, plugin: str, names=()) -> None:
+    """A ``ValueError`` naming every property of ``props`` that the plugin
+    never read (a misspelled ``slice_spacng`` would otherwise render the
+    defaults silently) and, for each, the closest of ``names`` (what the
+    plugin reads) and the properties it did read."""
+    unknown = sorted(props.unqueried())
+    if not unknown:
+        return
+    known = sorted(set(names) | {k for k in props.keys() if k not in unknown})
+    parts = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, known + list(COMMON_PROPERTIES), n=1)
+        parts.append(f"'{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
+    raise ValueError(
+        f"Unknown {plugin} propert{'ies' if len(unknown) > 1 else 'y'} {', '.join(parts)}: "
+        f"remove it or correct its name (the {plugin} docstring lists its properties).")
+
+
+#: properties every integrator reads (the template's)
+COMMON_PROPERTIES = ("output", "samples_per_pixel", "jitter_pixels", "quality", "error_budget")
 
 
 def layer_channels(layer: str) -> str:
@@ -350,11 +377,13 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                               if "jitter_pixels" in props else None)
         self.quality, self.error_budget = quality_auto.read_quality(props)
         self.method_name = props.plugin_name()
+        self.read_properties(props)
+        check_unknown_properties(props, self.method_name,
+                                 [k for k in vars(self) if not k.startswith("_")])
         #: the properties as given, but the quality mode (quality="auto"
         #: renders with these plus the settings it chooses)
         self._explicit = {k: props[k] for k in props.keys()
                           if k not in ("quality", "error_budget")}
-        self.read_properties(props)
         #: what mi.traverse lists: the properties as read (plain values)
         self.property_names = tuple(k for k, v in vars(self).items()
                                     if not k.startswith("_") and
@@ -516,7 +545,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         # LLVM's expanded scatter-reductions write the target's size into
         # the kernel, so a new frame's row or light-ray count would be a new
         # kernel: reduce with local atomics instead (design: new frames)
-        dr.set_expand_threshold(0)
+        dr.set_expand_threshold(SCATTER_EXPAND_THRESHOLD)
         try:
             with shared_scalars():
                 yield record
