@@ -1,0 +1,52 @@
+"""integrators.opaque: frame constants as kernel parameters, exact."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from integrators.opaque import Divisor, reciprocal, scalar, shared_scalars
+
+DIVISORS = list(range(1, 130)) + [255, 256, 257, 1023, 1024, 1025, 4095, 4096, 4097, 65535,
+                                  65536, 65537, 123456789, 2**31 - 1, 2**31, 2**32 - 1]
+
+
+@pytest.mark.parametrize("d", DIVISORS)
+def test_divisor_is_exact_on_every_kind_of_numerator(d):
+    """Against NumPy's integer division: random 32-bit numerators, the
+    small ones, multiples of d and their neighbours, the extremes."""
+    rng = np.random.default_rng(d)
+    k = np.arange(0, 2000, dtype=np.uint64) * d
+    n = np.concatenate([rng.integers(0, 2**32, 20000, dtype=np.uint64), np.arange(3000),
+                        k, k + 1, np.maximum(k, 1) - 1, [2**32 - 1, 2**31, 2**31 - 1]])
+    n = n[n < 2**32].astype(np.uint32)
+    q, r = Divisor(d).divmod(mi.UInt32(n))
+    assert np.array_equal(np.asarray(q), n // d)
+    assert np.array_equal(np.asarray(r), n % d)
+
+
+def test_divisor_keeps_int32_lanes_int32():
+    n = np.arange(0, 100000, dtype=np.int32)
+    q, r = Divisor(7).divmod(mi.Int32(n))
+    assert isinstance(q, mi.Int32)
+    assert np.array_equal(np.asarray(q), n // 7) and np.array_equal(np.asarray(r), n % 7)
+
+
+def test_divisor_refuses_zero():
+    with pytest.raises(ValueError):
+        Divisor(0)
+
+
+def test_reciprocal_is_the_division_by_a_literal():
+    """x · reciprocal(c) is bit for bit the x / c of a kernel with the literal c."""
+    x = dr.arange(mi.Float, 1000) * 0.37 + 0.01
+    for c in (3.0, 0.1, 7.3e-3, 1234.5):
+        assert np.array_equal(np.asarray(x * reciprocal(c)), np.asarray(x / c))
+
+
+def test_shared_scalars_give_one_variable_per_value_without_aliasing():
+    with shared_scalars():
+        a, b = scalar(1.5), scalar(1.5)
+        assert a.index == b.index
+        a += 1.0                       # an in-place update reaches no other handle
+        assert float(b[0]) == 1.5 and float(scalar(1.5)[0]) == 1.5
+    assert scalar(1.5).index != scalar(1.5).index   # outside a render: fresh ones
