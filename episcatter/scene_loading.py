@@ -22,6 +22,14 @@ def unwrap_render_error(err: BaseException) -> BaseException:
     operation').  Follows that chain to the first non-RuntimeError."""
     while isinstance(err, RuntimeError) and isinstance(err.__cause__, Exception):
         err = err.__cause__
+    # Mitsuba's parser wraps an error raised while a plugin is built into a
+    # RuntimeError ("failed to instantiate ... Traceback ..."): its last line
+    # is the error itself
+    lines = str(err).strip().splitlines()
+    if isinstance(err, RuntimeError) and len(lines) > 1 and "Traceback" in str(err):
+        kind, _, message = lines[-1].partition(": ")
+        if kind in ("ValueError", "TypeError") and message:
+            return ValueError(message)
     return err
 
 

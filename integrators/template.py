@@ -474,7 +474,13 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
             return int(spp)
         if self.samples_per_pixel is not None:
             return self.samples_per_pixel
-        return int(sensor_of(scene, sensor).sampler().sample_count())
+        count = int(sensor_of(scene, sensor).sampler().sample_count())
+        if count < 1:
+            raise ValueError(
+                f"The sensor's sampler has sample_count = {count}: give it at least 1 "
+                "(<integer name=\"sample_count\" .../>, -D spp=1 for the suite's scenes), "
+                "or pass spp to mi.render / the integrator's samples_per_pixel.")
+        return count
 
     def jitters(self, spp: int) -> bool:
         """Whether camera samples are jittered inside the pixel at ``spp``
