@@ -10,10 +10,12 @@ from dataclasses import dataclass, field
 import drjit as dr
 import mitsuba as mi
 
-from ..light_transport import color, phase_eval
-from .light_rays import SliceLightRays
+from rectify import view_to_light
+
+from ..light_transport import color, first_blocker, phase_eval
+from .light_rays import SliceLightRays, texel_colour, texel_rays, traced_bias
 from .minmax_tree import MinMaxTree, SliceRays, march_tree
-from ..opaque import floats, vector
+from ..opaque import floats, scalar, vector
 from .section_integral import (PointTable, box_path, directional_section, point_ray,
                                point_section)
 from .slices_and_samples import EpipolarSamples
@@ -43,10 +45,13 @@ def integrate_samples(params, samples: EpipolarSamples, index: mi.UInt32,
     o = dr.gather(mi.Point3f, samples.o, index)
     omega = dr.gather(mi.Vector3f, samples.omega, index)
     sigma_t, sigma_s = color(params.medium.sigma_t), color(params.medium.sigma_s)
-    leaf = None
+    leaf = end = None
     if shadow_map is not None:
         def leaf(t, i):
             return shadow_map.visibility(o + omega * t)
+    else:
+        def end(t):
+            return traced_visibility(params, samples.frame, light_rays, rays, t)
     if params.light.kind == "directional":
         path = box_path(params, o, omega)
         w_l = vector(params.light.direction)
@@ -60,5 +65,25 @@ def integrate_samples(params, samples: EpipolarSamples, index: mi.UInt32,
 
         def section(a, b):
             return point_section(sigma_t, table, ray, a, b)
-    res = march_tree(samples.frame, light_rays, tree, rays, section, max_level, leaf)
+    res = march_tree(samples.frame, light_rays, tree, rays, section, max_level, leaf,
+                     end_visibility=end)
     return Integrated(index=index, L=F * res.L, steps=res.steps)
+
+
+def traced_visibility(params, frame, light_rays: SliceLightRays, rays: SliceRays, t):
+    """(V, colour): the visibility (0 or 1) of the point ``t`` of each ray
+    by the height map's own test (:mod:`.light_rays`: depth ≤ traced blocker
+    depth + bias) along the point's own light ray, traced with Mitsuba, and
+    the light's colour along that ray (:func:`.light_rays.texel_colour`;
+    :func:`~integrators.minmax.minmax_tree.march_tree`'s ``end_visibility``)."""
+    gamma, u = view_to_light(frame, rays.alpha, rays.beta, rays.t_near + t)
+    u_top = scalar(light_rays.u_top)
+    o, w = texel_rays(frame, rays.alpha, gamma, light_rays.u_top)
+    hit, p = first_blocker(params, o, w)
+    z_b = dr.select(hit, dr.norm(p - o), dr.inf)
+    if frame.is_directional:
+        z, z_b = u_top - u, z_b + scalar(light_rays.bias)
+    else:
+        z, z_b = u, z_b + traced_bias(frame, z_b)
+    V = dr.select(z <= z_b, mi.Float(1.0), mi.Float(0.0))
+    return V, texel_colour(params, frame, o, w)

@@ -295,13 +295,25 @@ def step_kind(lit_depth, dark_depth, state, leaf):
 
 def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTree,
                rays: SliceRays, section, max_level: int | None = None,
-               leaf_visibility=None, tally: bool = False) -> MarchResult:
+               leaf_visibility=None, tally: bool = False,
+               end_visibility=None) -> MarchResult:
     """March every ray through its slice's tree (module docstring).
 
     ``section(t_a, t_b)`` → Color3f is the unit-colour in-scattering of a ray
     section (:mod:`.section_integral`; it may close over per-ray values).
     ``leaf_visibility(t)`` → Float in [0, 1] (resampled blockers) replaces the
     leaf's own test.  ``max_level`` caps the levels used (0: per texel).
+    ``end_visibility(t)`` → (Float in [0, 1], Color3f) (traced blockers):
+    the exact visibility of the ray's point ``t`` and the light's colour
+    along its own light ray (as :func:`~.light_rays.texel_colour`); given,
+    the *end texels* of a ray
+    whose test point is clamped to the ray's end (its light ray ``γ_i``
+    lies beyond the ray's γ range: the ray starts or stops inside the
+    texel's cell, on an occluder's face say) take their section's visibility
+    from it at the section's midpoint instead of comparing the ray's end
+    with the blocker along ``γ_i`` -- a blocker ``Δγ`` away, which near a
+    light next to a wall (a light inside a closed box) lights the section
+    in front of the wall's dark side.
     ``tally``: also count the steps of each kind (``STEP_KINDS``, a diagnosis
     of where the steps go; the march itself is unchanged)."""
     n = light_rays.n
@@ -347,12 +359,9 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
             up &= ~(mixed & (i < run_end))
         return dr.select(up, level + 1, level)
 
-    def cond(i, level, L, steps, run_end, *counts):
-        return active & (i <= i_last)
-
     def body(i, level, L, steps, run_end, *counts):
         size = mi.UInt32(1) << level
-        end = dr.minimum(i + size, i_last + 1)              # texels [i, end) of the ray
+        end = dr.minimum(i + size, last + 1)                # texels [i, end) of the march
         node = base + (2 * n - ((2 * n) >> level)) + (i >> level)
         z_lo, z_hi = dr.gather(mi.Float, tree.z_min, node), dr.gather(mi.Float, tree.z_max, node)
         r_lo, r_hi = depth_range(frame, rays, u_top, t_test(i), t_test(end - 1))
@@ -395,9 +404,47 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         return (i_next, level, L, steps + 1, run_end, *counts)
 
     width = dr.width(rays.t_end)
+    L0 = dr.zeros(mi.Color3f, width)
+    i_start, i_stop = mi.UInt32(i_first), mi.UInt32(i_last)
+    if end_visibility is not None:
+        # end texels whose test point is clamped to the ray's end: exact
+        # visibility at their section's midpoint (docstring); the march
+        # covers the texels between them
+        half = scalar(0.5)
+        head = active & (lo_k + (mi.Float(i_first) + half) * dg < g_s)
+        tail = active & (lo_k + (mi.Float(i_last) + half) * dg > g_e)
+        single = i_first == i_last          # one texel, clamped at either end
+        tail |= single & head
+        head &= ~single
+
+        def end_section(on, i, ta, tb):
+            on = on & (tb > ta)
+            V, c = end_visibility(half * (ta + tb))
+            on &= V > 0
+            I = section(ta, tb)
+            if tree.state is not None:
+                # a section integral that underflowed to 0 stays 0 (the
+                # colour's capped light-side factor may overflow: inf·0)
+                I = dr.select(I > 0, I * c, 0.0)
+            return dr.select(on, I, 0.0)
+
+        L0 += end_section(head, i_first, t_lo, t_edge(i_first + 1))
+        L0 += end_section(tail, i_last, dr.select(single, t_lo, t_edge(i_last)), t_hi)
+        i_start = dr.select(head, i_start + 1, i_start)
+        # the march's last texel, as i_last + 1 - tail (no underflow at 0)
+        i_stop = dr.select(tail, i_stop, i_stop + 1)
+        active &= i_start < i_stop
+        i_stop = dr.select(active, i_stop - 1, i_stop)
+        last = i_stop
+    else:
+        last = i_last
+
+    def cond(i, level, L, steps, run_end, *counts):
+        return active & (i <= last)
+
     counts = tuple(dr.zeros(mi.UInt32, width) for _ in STEP_KINDS) if tally else ()
-    state = (mi.UInt32(i_first), start_level(i_first), dr.zeros(mi.Color3f, width),
-             dr.zeros(mi.UInt32, width), mi.UInt32(i_first), *counts)
+    state = (mi.UInt32(i_start), start_level(i_start), L0,
+             dr.zeros(mi.UInt32, width), mi.UInt32(i_start), *counts)
     i, level, L, steps, _, *counts = dr.while_loop(state=state, cond=cond, body=body)
     if tree.constant_colour is not None:
         L = L * opaque_colour(tree.constant_colour)
