@@ -100,7 +100,7 @@ from .kernel_separation import SeparatedChannel
 from .kernel_table import nystrom_sums, tabulated_terms
 from .light_transport import (slabs, color, first_blocker, phase_eval, point, sample_light, scalar,
                               segment_box, segment_weight, vector)
-from .opaque import Divisor
+from .opaque import Divisor, floats
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
 CONE_MARGIN = 1e-4
@@ -504,7 +504,7 @@ def phase_of_angle(params, s) -> mi.Float:
 
 def phase_of_angle_numpy(params, s) -> np.ndarray:
     s = np.asarray(s, np.float64)
-    return np.array(phase_of_angle(params, mi.Float(s.ravel().astype(np.float32))),
+    return np.array(phase_of_angle(params, floats(s)),
                     np.float64).reshape(s.shape)
 
 
@@ -776,7 +776,7 @@ class LocalChannel(SeparatedChannel):
         """The mean of a_i over each lattice cell, ``cells = (bounds, Δγ)``
         (:func:`interval_bounds`)."""
         bounds, delta = cells
-        b_grid = Angles.from_tan_half(mi.Float(np.asarray(self.x_grid, np.float32)))
+        b_grid = Angles.from_tan_half(floats(self.x_grid))
         return nystrom_sums(count, self.WA,
                             lambda k: self.kernel.cell_mean(b_grid.gather(k), bounds, delta))
 
@@ -784,7 +784,7 @@ class LocalChannel(SeparatedChannel):
         """b_i at the queries' tan(β/2): it depends on β alone, so it is
         tabulated in tan(β/2) with the SVD grid's warp (``lanes``:
         :func:`~integrators.kernel_table.tabulated_terms`)."""
-        g_grid = Angles.of(mi.Float(self.gamma_grid))
+        g_grid = Angles.of(floats(self.gamma_grid))
 
         def b_sums(x):
             b = Angles.from_tan_half(x)

@@ -108,7 +108,7 @@ from .light_transport import (slabs, color, first_blocker, phase_eval, point, sa
                               scalar, segment_box, segment_weight, vector, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
 from .marching import lit_spacing, march, march_bisected
-from .opaque import Divisor
+from .opaque import Divisor, floats
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5
@@ -374,7 +374,7 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     pinhole = mi.Point3f(point(params.camera.origin))
     t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
     gamma_end = end_gamma(frame, b, t_near + dr.gather(mi.Float, cap.d, sample))
-    alpha_rows = dr.gather(mi.Float, mi.Float(np.asarray(slices.alpha, np.float32)), slice_index)
+    alpha_rows = dr.gather(mi.Float, floats(slices.alpha), slice_index)
     q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(r_count)[0]),
                         slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
                         t_near, ring_sample, n_samples, weight, dr.width(idx) / n_idx)

@@ -664,7 +664,7 @@ def bench_filter(n_rows: int = 1024, n: int = 1024, M: int = DEFAULT_M,
     z = rng.random((n_rows, n), dtype=np.float32)
     z[rng.random((n_rows, n)) < 0.5] = 1.0
     z_rows = mi.TensorXf(z)
-    w = transmittance_weights(mi.Float(np.full(n_rows, 2.0 / n, np.float32)), n)
+    w = transmittance_weights(dr.zeros(mi.Float, n_rows) + 2.0 / n, n)
     dr.eval(z_rows, w)
     def prefilter_once():
         return prefix_filter(z_rows, w, M, regions, fit_depth, half)

@@ -25,7 +25,7 @@ import numpy as np
 from .epipolar_setup import gray, light_side_extinction, light_side_gains
 from .integrand_svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .kernel_table import nystrom_sums, tabulated_terms
-from .opaque import Divisor, scalar_u32
+from .opaque import Divisor, floats, scalar_u32
 
 
 # --------------------------------------------------------------------------
@@ -81,7 +81,7 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
     """Σ_k e^{-σt x table[k]} weights[k, i] for each term i, per lane of x:
     the Nyström sums of :func:`separate_channel`
     (:func:`~integrators.kernel_table.nystrom_sums` of the exponential)."""
-    tab = mi.Float(np.asarray(table, np.float32))
+    tab = floats(table)
     # float32 range: in extreme optical depths (σt·γ_max ≳ 80) some Nyström
     # weights exceed it; their kernel factor e^{-σt x t} has underflowed to
     # 0 there, and an inf weight would turn 0 into NaN

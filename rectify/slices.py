@@ -36,7 +36,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ._dr import const, const_u32, floats, pixel_centres
+from ._dr import aligned, const, const_u32, floats, pixel_centres
 from .coords import (alpha_beta_to_pixel, alpha_beta_to_pixel_reference, pixel_to_alpha_beta,
                      pixel_to_alpha_beta_reference)
 from .epipole import EpipolarFrame
@@ -264,7 +264,7 @@ def _first_above(table_np: np.ndarray, table, alpha) -> mi.UInt32:
     first = np.minimum(np.searchsorted(t32, starts, side="right"), n - 1)
     first = np.concatenate([[0], first[:-1]])               # one bin early
     b = mi.UInt32(dr.clip(dr.floor((alpha - const(lo)) * const(1.0 / width)), 0, const(bins - 1)))
-    i = dr.gather(mi.UInt32, mi.UInt32(first.astype(np.uint32)), b)
+    i = dr.gather(mi.UInt32, mi.UInt32(aligned(first, np.uint32)), b)
     last = const_u32(n - 1)
 
     def more(i):
