@@ -21,58 +21,22 @@ never a specific backend.
 """
 from __future__ import annotations
 
-import contextvars
-from contextlib import contextmanager
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify._dr import aligned
+from rectify._dr import aligned, const, const_u32, opaque_scalar, shared_scalars  # noqa: F401
 
 
-#: the opaque scalars of the running render, by (type, value): one kernel
-#: parameter per distinct value, as a literal would be, so that two call
-#: sites of the same computation (the ring's and the re-marched samples'
-#: march) write the same kernel (None: outside a render, no sharing)
-_SHARED: contextvars.ContextVar = contextvars.ContextVar("episcatter_opaque", default=None)
-
-
-@contextmanager
-def shared_scalars():
-    """Within the block, equal frame constants are one opaque variable
-    (:func:`scalar` and its siblings); the template opens it per render."""
-    token = _SHARED.set({})
-    try:
-        yield
-    finally:
-        _SHARED.reset(token)
-
-
-def _opaque(tp, value):
-    cache = _SHARED.get()
-    if cache is None:
-        return dr.opaque(tp, value)
-    key = (tp, value)
-    var = cache.get(key)
-    if var is None:
-        var = cache[key] = dr.opaque(tp, value)
-    return tp(var)          # a new handle: an in-place update cannot reach the cache
-
-
-def scalar(value) -> mi.Float:
-    """An opaque ``mi.Float`` holding the Python or NumPy number ``value``."""
-    return _opaque(mi.Float, float(value))
-
-
-def scalar_u32(value) -> mi.UInt32:
-    """An opaque ``mi.UInt32`` holding the non-negative integer ``value``."""
-    return _opaque(mi.UInt32, int(value))
+#: an opaque ``mi.Float`` / ``mi.UInt32`` holding a Python or NumPy number
+#: (rectify's: one variable per value within a render, :func:`shared_scalars`)
+scalar = const
+scalar_u32 = const_u32
 
 
 def scalar_i32(value) -> mi.Int32:
     """An opaque ``mi.Int32`` holding the integer ``value``."""
-    return _opaque(mi.Int32, int(value))
+    return opaque_scalar(mi.Int32, int(value))
 
 
 def _components(v) -> list:

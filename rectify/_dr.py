@@ -7,18 +7,54 @@ literals into new ones.  Everything uses the active Mitsuba variant's types
 """
 from __future__ import annotations
 
+import contextvars
+from contextlib import contextmanager
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 
+#: the opaque scalars of the running render, by (type, value): one kernel
+#: parameter per distinct value, as a literal would be, so that two call
+#: sites of the same computation (the ring's and the re-marched samples'
+#: march) write the same kernel (None: outside a render, no sharing)
+_SHARED: contextvars.ContextVar = contextvars.ContextVar("episcatter_opaque", default=None)
+
+
+@contextmanager
+def shared_scalars():
+    """Within the block, equal frame constants are one opaque variable
+    (:func:`opaque_scalar`, :func:`const` and their users); the integrators'
+    template opens it per render."""
+    token = _SHARED.set({})
+    try:
+        yield
+    finally:
+        _SHARED.reset(token)
+
+
+def opaque_scalar(tp, value):
+    """``dr.opaque(tp, value)``, or within :func:`shared_scalars` the one
+    variable of that type and value (as a new handle)."""
+    cache = _SHARED.get()
+    if cache is None:
+        return dr.opaque(tp, value)
+    key = (tp, value)
+    var = cache.get(key)
+    if var is None:
+        var = cache[key] = dr.opaque(tp, value)
+    return tp(var)          # a new handle: an in-place update cannot reach the cache
+
+
 def const(value) -> mi.Float:
     """An opaque ``mi.Float`` scalar."""
-    return dr.opaque(mi.Float, float(value))
+    return opaque_scalar(mi.Float, float(value))
 
 
 def const_u32(value) -> mi.UInt32:
-    return dr.opaque(mi.UInt32, int(value))
+    """An opaque ``mi.UInt32`` scalar."""
+    return opaque_scalar(mi.UInt32, int(value))
 
 
 def vec3(v) -> mi.Vector3f:
