@@ -1391,15 +1391,24 @@ def disagreeing_samples(queries: EpipolarQueries, values, tolerance: float) -> m
     none."""
     if not queries.count or queries.weight is None or tolerance >= 1.0:
         return dr.zeros(mi.UInt32, 0)
+    return disagreeing(queries.sample, queries.n_samples, values, tolerance)
+
+
+def disagreeing(sample: mi.UInt32, n: int, values, tolerance: float, peak=None) -> mi.UInt32:
+    """The test of :func:`disagreeing_samples` on plain arrays: of the ``n``
+    samples, those given exactly two of the answers ``values`` (answer i
+    belongs to sample ``sample[i]``) that differ by more than ``tolerance``
+    times the larger (channel sums) and by more than ``tolerance``·1e-2 of
+    the largest answer, or of ``peak`` where that is larger (a frame-wide
+    largest channel sum, for answers that are part of a frame)."""
     y = values[0] + values[1] + values[2]
-    n = queries.n_samples
     hi = dr.full(mi.Float, -dr.inf, n)
     lo = dr.full(mi.Float, dr.inf, n)
     shares = dr.zeros(mi.UInt32, n)
-    dr.scatter_reduce(dr.ReduceOp.Max, hi, y, queries.sample)
-    dr.scatter_reduce(dr.ReduceOp.Min, lo, y, queries.sample)
-    dr.scatter_reduce(dr.ReduceOp.Add, shares, mi.UInt32(1), queries.sample)
-    peak = dr.max(y)
+    dr.scatter_reduce(dr.ReduceOp.Max, hi, y, sample)
+    dr.scatter_reduce(dr.ReduceOp.Min, lo, y, sample)
+    dr.scatter_reduce(dr.ReduceOp.Add, shares, mi.UInt32(1), sample)
+    peak = dr.max(y) if peak is None else dr.maximum(dr.max(y), peak)
     spread = hi - lo
     return dr.compress((shares == 2) & (spread > tolerance * hi)
                        & (spread > tolerance * 1e-2 * peak))

@@ -29,24 +29,25 @@ def test_valid_properties_load(plugin):
     mi.load_dict({"type": plugin, "output": "scattering"})
 
 
+def _cli_error(capsys, tmp_path, *args):
+    """(exit code, stderr lines) of ``episcatter render`` on the tiny scene."""
+    from episcatter.cli import main
+
+    rc = main(["render", "tests/data/tiny_scene.xml", "-i", "raymarch", *args,
+               "-o", str(tmp_path / "x.exr")])
+    return rc, capsys.readouterr().err.strip().splitlines()
+
+
 def test_the_cli_says_what_is_wrong_in_one_line(capsys, tmp_path):
     """``-p visiblity=exact``: the first line of the error names the property
     and the fix, not Mitsuba's "failed to instantiate" wrapper."""
-    from episcatter.cli import main
-
-    rc = main(["render", "tests/data/tiny_scene.xml", "-i", "raymarch", "-p", "visiblity=exact",
-               "-o", str(tmp_path / "x.exr")])
-    err = capsys.readouterr().err.strip().splitlines()
+    rc, err = _cli_error(capsys, tmp_path, "-p", "visiblity=exact")
     assert rc == 2 and len(err) == 1
     assert "Unknown raymarch property 'visiblity' (did you mean 'visibility'?)" in err[0]
 
 
 def test_the_cli_names_a_bad_value_in_one_line(capsys, tmp_path):
-    from episcatter.cli import main
-
-    rc = main(["render", "tests/data/tiny_scene.xml", "-i", "raymarch", "-p", "visibility=exakt",
-               "-o", str(tmp_path / "x.exr")])
-    err = capsys.readouterr().err.strip().splitlines()
+    rc, err = _cli_error(capsys, tmp_path, "-p", "visibility=exakt")
     assert rc == 2 and len(err) == 1
     assert "Property 'visibility' = 'exakt' is not one of" in err[0]
 
@@ -54,9 +55,6 @@ def test_the_cli_names_a_bad_value_in_one_line(capsys, tmp_path):
 def test_a_sampler_with_no_samples_is_a_clear_error(capsys, tmp_path):
     """``-D spp=0`` (a sampler with sample_count 0) used to fail inside a
     Dr.Jit division ("incompatible sizes")."""
-    from episcatter.cli import main
-
-    rc = main(["render", "tests/data/tiny_scene.xml", "-i", "raymarch", "-D", "spp=0",
-               "-o", str(tmp_path / "x.exr")])
-    err = capsys.readouterr().err
+    rc, err = _cli_error(capsys, tmp_path, "-D", "spp=0")
+    err = "\n".join(err)
     assert rc == 2 and "sample_count = 0" in err and "at least 1" in err

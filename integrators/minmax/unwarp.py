@@ -31,9 +31,9 @@ import mitsuba as mi
 from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
 from ..capture import CameraCapture
-from ..epipolar_setup import brute_force, disagreeing_samples
+from ..epipolar_setup import brute_force, disagreeing
 from ..marching import auto_spacing, march
-from ..opaque import floats, scalar_u32, two_or_more
+from ..opaque import floats, two_or_more
 from .slices_and_samples import EpipolarSamples
 
 #: default relative depth scale of the bilateral weights (module docstring)
@@ -134,52 +134,28 @@ def unwarp_taps(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Fl
                       brightest=dr.select(none, L, hi))
 
 
-@dataclass(frozen=True, eq=False)
-class TapPairs:
-    """Each pixel's darkest and brightest blended tap as the two answers
-    of one camera sample, in the form
-    :func:`~integrators.epipolar_setup.disagreeing_samples` reads
-    (``sample``, ``weight``, ``count``, ``n_samples`` of its
-    ``EpipolarQueries``): query ``2i`` and ``2i+1`` are pixel ``i``'s."""
-    sample: mi.UInt32 = field(repr=False)
-    weight: mi.Float = field(repr=False)
-    n_samples: int
-
-    @property
-    def count(self) -> int:
-        return dr.width(self.sample)
-
-
 def disagreeing_pixels(taps: UnwarpTaps, tolerance: float, peak: mi.Float) -> mi.UInt32:
     """Pixels (positions in ``taps``) whose blended taps disagree: the
     darkest and the brightest differ by more than ``tolerance`` of the
     brighter and by more than ``tolerance``·1e-2 of ``peak`` (the frame's
     largest channel sum, :func:`frame_peak`), by
-    :func:`~integrators.epipolar_setup.disagreeing_samples`, the test the
+    :func:`~integrators.epipolar_setup.disagreeing`, the test the
     epipolar template applies to a camera sample's two slices.  A shadow
     edge or a narrow beam runs between such taps, so their blend estimates
     neither side: :func:`fixup` ray-marches these pixels.
 
-    ``disagreeing_samples`` takes its peak from the values it is given; a
-    partial render unwarps a subset of the pixels, so the frame's ``peak``
-    rides along as one more (dark, bright) pair, dropped from the answer."""
+    The frame's ``peak`` bounds the test's floor, so that a partial render,
+    which unwarps a subset of the pixels, flags what the full render does."""
     n = dr.width(taps.weight)
     if not n or tolerance >= 1.0:
         return dr.zeros(mi.UInt32, 0)
-    pair = dr.arange(mi.UInt32, 2 * n + 2)
+    pair = dr.arange(mi.UInt32, 2 * n)
     pixel = pair // 2
     bright = (pair & 1) == 1
-    at = dr.minimum(pixel, scalar_u32(n - 1))
-    values = dr.select(bright, dr.gather(mi.Color3f, taps.brightest, at),
-                       dr.gather(mi.Color3f, taps.darkest, at))
-    extra = pixel == scalar_u32(n)
-    values = dr.select(extra, dr.select(bright, mi.Color3f(peak * (1.0 / 3.0)), 0.0), values)
-    pairs = TapPairs(sample=pixel, weight=dr.full(mi.Float, 0.5, 2 * n + 2), n_samples=n + 1)
-    found = disagreeing_samples(pairs, values, tolerance)
-    mask = dr.zeros(mi.Bool, n)
-    if dr.width(found):
-        dr.scatter(mask, True, found, found < scalar_u32(n))
-    return dr.compress(mask)
+    values = dr.select(bright, dr.gather(mi.Color3f, taps.brightest, pixel),
+                       dr.gather(mi.Color3f, taps.darkest, pixel))
+    third = peak * (1.0 / 3.0)           # the peak as a channel sum, rounded as one
+    return disagreeing(pixel, n, values, tolerance, peak=third + third + third)
 
 
 def frame_peak(samples: EpipolarSamples, values: mi.Color3f) -> mi.Float:
