@@ -77,7 +77,8 @@ def jobs_for(size, s) -> dict:
     for prof in s["profiles"]:
         slices, samples, sm, _, _ = talk[prof]
         jobs[prof] = {"type": "minmax_epipolar", "slices": slices, "samples": samples,
-                      "shadowmap_resolution": sm, "light_rays": sm}
+                      "shadowmap_resolution": sm, "light_rays": sm,
+                      "small_image_march": False}
     return jobs
 
 
@@ -174,7 +175,7 @@ def main(argv=None):
     d = DIRECTIONAL
     dir_jobs = {"high_quality_directional": {
         "type": "minmax_epipolar", "slices": d["slices"], "samples": d["samples"],
-        "light_rays": d["map"], "shadowmap_resolution": d["map"]},
+        "light_rays": d["map"], "shadowmap_resolution": d["map"], "small_image_march": False},
         "brute_force": {"type": "raymarch", "visibility": "shadowmap",
                         "steps": s["brute_steps"], "shadowmap_resolution": d["map"]}}
     talk_dir = {"high_quality_directional": (d["slices"], d["samples"], d["map"], d["talk_ms"],

@@ -427,8 +427,9 @@ def random_stats(img, ref, unoccluded_peak: float) -> dict:
 def run_random_scene(spec, methods=RANDOM_METHODS, reference_steps: int = c.REFERENCE_STEPS,
                      params: dict | None = None) -> list[dict]:
     """The exact reference and each of ``methods`` (at its defaults, plus
-    ``params`` if given) on one generated scene, scattering only, one row per
-    method; the unoccluded reference's peak only where the reference is black."""
+    ``params[method]`` if given) on one generated scene, scattering only, one
+    row per method; the unoccluded reference's peak only where the reference
+    is black."""
     scene = spec.load()
     exact = {**exact_props(reference_steps), "output": "scattering"}
     ref, status = render(scene, "raymarch", exact)
@@ -443,7 +444,8 @@ def run_random_scene(spec, methods=RANDOM_METHODS, reference_steps: int = c.REFE
         unoccluded = float(np.max(free)) if free is not None else math.nan
     rows = []
     for kind in methods:
-        img, status = render(scene, kind, {"output": "scattering", **(params or {})})
+        img, status = render(scene, kind, {"output": "scattering",
+                                           **(params or {}).get(kind, {})})
         row = {**base, "method": kind, "status": status}
         if img is not None:
             row.update(random_stats(img, ref, unoccluded))
@@ -515,15 +517,17 @@ def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
 
 
 def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
-               steps: int = c.REFERENCE_STEPS, tag: str = "random") -> list[dict]:
-    """The randomised set: ``n`` scenes from ``first_seed``; writes
-    ``<tag>.csv``, ``<tag>.json`` (settings, rows, summary) and ``<tag>.md``."""
+               steps: int = c.REFERENCE_STEPS, tag: str = "random",
+               params: dict | None = None) -> list[dict]:
+    """The randomised set: ``n`` scenes from ``first_seed``, each method at
+    its defaults plus ``params[method]``; writes ``<tag>.csv``,
+    ``<tag>.json`` (settings, rows, summary) and ``<tag>.md``."""
     from . import random_scenes
 
     rows = []
     specs = random_scenes.scene_set(n, first_seed)
     for i, spec in enumerate(specs):
-        new = run_random_scene(spec, methods, steps)
+        new = run_random_scene(spec, methods, steps, params)
         rows += new
         print(f"[{i + 1}/{n}] {spec.name}: " + "; ".join(
             f"{r['method']} {'ok' if r.get('bounded') else 'UNBOUNDED'} "
@@ -532,7 +536,8 @@ def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
             for r in new), flush=True)
     summary = random_summary(rows, methods)
     settings = {"name": NAME, "set": tag, "scenes": n, "first_seed": first_seed,
-                "methods": list(methods), "reference_steps": steps, "bound_relmse": BOUND,
+                "methods": list(methods), "params": params or {},
+                "reference_steps": steps, "bound_relmse": BOUND,
                 "bound_peak": PEAK_BOUND, "bound_mean": MEAN_BOUND, "bound_leak": LEAK_BOUND,
                 "invisible_peak": INVISIBLE_PEAK, "output": "scattering",
                 "specs": [s.as_json() for s in specs]}
@@ -635,6 +640,23 @@ def summarise_logs(paths, out, tag: str, method: str = "epipolar_tree") -> dict:
     return summary
 
 
+def method_settings(items, methods) -> dict:
+    """``{method: {key: value}}`` of ``--set METHOD:KEY=VALUE`` items (values
+    as Mitsuba reads strings); a method not in ``methods`` or an item
+    without ``:`` and ``=`` is an error that names the form."""
+    out = {}
+    for item in items:
+        method, _, kv = item.partition(":")
+        key, eq, value = kv.partition("=")
+        if not (method and key and eq):
+            raise SystemExit(f"--set {item!r}: give METHOD:KEY=VALUE, e.g. "
+                             "minmax_epipolar:small_image_march=false")
+        if method not in methods:
+            raise SystemExit(f"--set {item!r}: {method!r} is not one of --methods {methods}")
+        out.setdefault(method, {})[key] = value
+    return out
+
+
 def main(argv=None):
     p = c.base_parser(__doc__, [], [])
     p.add_argument("--random", type=int, default=0, metavar="N",
@@ -643,6 +665,9 @@ def main(argv=None):
     p.add_argument("--tag", default="random", help="file stem of --random's outputs")
     p.add_argument("--methods", nargs="+", default=list(RANDOM_METHODS),
                    help="integrators of --random (default: all three)")
+    p.add_argument("--set", action="append", default=[], metavar="METHOD:KEY=VALUE",
+                   help="a property of one method of --random (repeatable), e.g. "
+                        "minmax_epipolar:small_image_march=false")
     p.add_argument("--compare-logs", nargs=2, metavar=("BEFORE", "AFTER"), default=None,
                    help="comma-separated progress logs of two --random runs: before/after table")
     p.add_argument("--summarise-logs", default=None, metavar="LOGS",
@@ -658,7 +683,8 @@ def main(argv=None):
     if args.random:
         out = c.output_dir(NAME, args.out, args.quick)
         return run_random(args.random, args.first_seed, out, tuple(args.methods),
-                          steps=256 if args.quick else c.REFERENCE_STEPS, tag=args.tag)
+                          steps=256 if args.quick else c.REFERENCE_STEPS, tag=args.tag,
+                          params=method_settings(args.set, args.methods))
     s = settings_for(args.quick)
     if args.quick:
         s["quick_subset"] = True

@@ -1357,24 +1357,31 @@ def brute_force(params, cap: CameraCapture, steps: int, bisections: int = 0) -> 
 
 def march_ring(params, cap: CameraCapture, queries: EpipolarQueries, steps: int,
                bisections: int = 0) -> mi.Color3f:
-    """Brute-force L_scat of the ring samples (§6): :func:`brute_force`.
-    For a point or spot light, the samples whose view ray passes within
-    one pixel's angle of the light (a light on or next to a pixel centre:
-    the 1/r² peak is steep there, and such a pixel can hold much of the
-    image's energy) take ``PEAK_STEP_FACTOR`` × the steps; they are a
-    handful, the rest of the ring keeps ``steps``."""
-    ring = cap.subset(queries.ring_sample)
-    if params.light.kind == "directional" or not dr.width(queries.ring_sample):
-        return brute_force(params, ring, steps, bisections)
+    """Brute-force L_scat of the ring samples (§6):
+    :func:`peak_marched`."""
+    return peak_marched(params, cap.subset(queries.ring_sample), queries.frame, steps,
+                        bisections)
+
+
+def peak_marched(params, cap: CameraCapture, frame, steps: int,
+                 bisections: int = 0) -> mi.Color3f:
+    """L_scat of every sample of ``cap`` by :func:`brute_force`.  For a
+    point or spot light, the samples whose view ray passes within one
+    pixel's angle of the light (a light on or next to a pixel centre: the
+    1/r² peak is steep there, and such a pixel can hold much of the image's
+    energy) take ``PEAK_STEP_FACTOR`` × the steps; they are a handful, the
+    rest keep ``steps``.  ``frame``: the epipolar frame of the light."""
+    if params.light.kind == "directional" or not cap.count:
+        return brute_force(params, cap, steps, bisections)
     cam = params.camera
     pixel = 2.0 * max(float(np.linalg.norm(cam.x_axis)) / cam.width,
                       float(np.linalg.norm(cam.y_axis)) / cam.height)
-    beta = direction_to_alpha_beta(queries.frame, ring.omega)[1]
+    beta = direction_to_alpha_beta(frame, cap.omega)[1]
     peak = dr.minimum(beta, math.pi - beta) < pixel
-    out = brute_force(params, ring, steps, bisections)
+    out = brute_force(params, cap, steps, bisections)
     near = dr.compress(peak)
     if dr.width(near):
-        fine = brute_force(params, ring.subset(near), PEAK_STEP_FACTOR * steps, bisections)
+        fine = brute_force(params, cap.subset(near), PEAK_STEP_FACTOR * steps, bisections)
         dr.scatter(out, fine, near)
     return out
 

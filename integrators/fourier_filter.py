@@ -503,10 +503,12 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
                                    self.band_cells(model, plan))
             keep.append(band)
+        kernels = {}        # the channels of one σt share reference rays and kernels
         for c in range(C):
             parts = KernelParts.of(queries, rays, L, A, B, c)
             U_c, V_c, bad = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                              float(sigma_t[c]), length, beta_b, tail)
+                                              float(sigma_t[c]), length, beta_b, tail,
+                                              kernels)
             U.append(U_c + band[c])
             V.append(V_c)
             Ls.append(parts.L)
@@ -553,11 +555,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return model.resample_blockers(params, queries, rays, shadow_map, 1)
 
     def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float,
-                     length: float = 0.0, beta_b=None, tail=None):
+                     length: float = 0.0, beta_b=None, tail=None, kernels=None):
         """(U, V̄) per query for one colour channel: the unshadowed sum and
         the effective average visibility of ``weights`` (clamped to [0, 1]
         with ``clamp``, Appendix A); ``length``: the decay length of the
-        reference rays (the light model's ``light_length``)."""
+        reference rays (the light model's ``light_length``); ``kernels``: a
+        dict the channels of one render share, which keeps the reference
+        rays and their kernels of each σt (a grey medium's channels differ
+        in the light's colour alone)."""
+        kernels = {} if kernels is None else kernels
         if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
             with self.stage("evaluate") as keep:
                 # U from the query's own kernel too: the separated kernel's
@@ -574,16 +580,21 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             keep.append(U)
         refs = None
         if self.weights == "reference_ray":
-            refs = reference_rays(queries, sigma_t, length, self.reference_rays)
+            if ("refs", sigma_t) not in kernels:
+                kernels["refs", sigma_t] = reference_rays(queries, sigma_t, length,
+                                                          self.reference_rays)
+            refs = kernels["refs", sigma_t]
         if self.weights == "exact":
             S_K, S, P, near = self.exact_sum(queries, smap, cover, parts)
             V = dr.select(U > 0.0, S_K / U, 1.0)
         elif refs is not None and refs.count > 1:      # several reference rays per row
             V, S, P, near = self.interpolated_average(params, queries, rays, smap, cover,
-                                                      parts.L, sigma_t, refs, beta_b, tail)
+                                                      parts.L, sigma_t, refs, beta_b, tail,
+                                                      kernels)
         else:
             w = parts.L * (texel_size(rays) if self.weights == "average" else
                            reference_kernel(params, queries, rays, sigma_t, self.reference))
+            dr.eval(w)          # read by the filter and every sum of filtered_average
             V, S, P, near = self.filtered_average(queries, smap, cover, w, self.clamp,
                                                   beta_b, tail)
         with self.stage("evaluate") as keep:
@@ -653,15 +664,26 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return V, drop
 
     def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
-                             refs, beta_b=None, tail=None):
+                             refs, beta_b=None, tail=None, kernels=None):
         """(V̄, S, P, near): the weighted average visibility with the weights
         of each query's mix of its two nearest reference rays
         (:mod:`integrators.fourier_references`), one filter per reference
         ray, and its shadowed, unshadowed and near-step weight sums;
         ``tail``: the traced end runs replace the map's visibility
-        (:meth:`~integrators.fourier_tail.TailVisibility.correction`)."""
+        (:meth:`~integrators.fourier_tail.TailVisibility.correction`);
+        ``kernels``: reference ray k's kernel of this σt, kept for the other
+        channels (:meth:`channel_sums`)."""
+        kernels = {} if kernels is None else kernels
+
         def weighted_sum(k, rows):
-            w = L * row_kernel(params, queries, rays, sigma_t, refs.beta[k])
+            if ("kernel", sigma_t, k) not in kernels:
+                K = row_kernel(params, queries, rays, sigma_t, refs.beta[k])
+                dr.eval(K)
+                kernels["kernel", sigma_t, k] = K
+            # materialised once: the filter, the class sums, the unshadowed
+            # sum and the tail correction all read it
+            w = L * kernels["kernel", sigma_t, k]
+            dr.eval(w)
             sub = smap if k < 2 else restrict_rows(smap, rows)
             V_series, drop = self.filtered(queries, sub, cover, w, self.clamp,
                                            band=self.exact_fallback)

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from rectify import ring_mask
 
@@ -23,13 +24,18 @@ from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial
 from .minmax.section_integral import point_table
 from .minmax.slice_subset import (SliceState, computed_pixels, dirty_slices, merged_bounds,
                                   merged_rows, merged_samples)
-from .minmax.slices_and_samples import epipolar_samples, sample_layout, trace_layout
+from .minmax.slices_and_samples import sample_layout, trace_layout
 from .minmax.unscattered import unshadowed_inscattering
 from .minmax.unwarp import (DEPTH_SIGMA, disagreeing_pixels, fixup, frame_peak,
                             unwarp_taps)
 from .minmax.validate import check_scene
 from .opaque import two_or_more
 from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
+
+
+#: samples on screen per pixel from which the defaults march every pixel
+#: instead (:meth:`MinMaxEpipolarIntegrator.marches_every_pixel`)
+SMALL_IMAGE_SAMPLES = 4
 
 
 class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
@@ -123,6 +129,11 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     ``fixup_bisections``        bisections locating the shadow and cone
                                 edges of the fix-up march (traced blockers;
                                 default 4, the epipolar methods' ring)
+    ``small_image_march``       march every pixel with the fix-up's marcher
+                                when the slices hold at least 4 samples per
+                                pixel (default true; the profiles: false):
+                                on such small images each pixel spans a
+                                wide angle between slices
     ==========================  ================================================
 
     One camera sample per pixel centre (the talk's convention).  The
@@ -171,6 +182,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                                                 minimum=0.0, maximum=1.0)
         self.fixup_bisections = read_number(props, "fixup_bisections", RING_BISECTIONS,
                                             minimum=0, maximum=24, integer=True)
+        self.small_image_march = read_bool(props, "small_image_march",
+                                           method.get("small_image_march", True))
         self.explicit = {k for k in ("slices", "samples", "shadowmap_resolution", "light_rays")
                          if k in props}
 
@@ -208,9 +221,13 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, s["shadowmap_resolution"])
         with self.stage("samples"):
-            samples = epipolar_samples(params, s["slices"], s["samples"], self.sample_density)
+            layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
+            if self.marches_every_pixel(params, layout):
+                return self.every_pixel(params, cap, layout, s, shadow_map)
+            samples = trace_layout(params, layout)
         table = self.section_table(params)
-        flags, rays = self.slice_blockers(params, samples, s, shadow_map, table)
+        flags = self.refine(params, samples, table)
+        rays = self.height_maps(params, samples, s, shadow_map)
         lo, hi = colour_bounds(rays.colour, rays.n)
         const = constant_colour(lo, hi)
         per_sample, counts = self.slice_values(params, samples, flags, rays, table, const,
@@ -232,7 +249,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         state = self.render_record.given
         s = self.settings(params)
         layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
-        if not (self.slices_alone() and isinstance(state, SliceState) and state.fits(s, layout)):
+        if not (self.slices_alone() and isinstance(state, SliceState) and state.fits(s, layout)
+                and not self.marches_every_pixel(params, layout)):
             return super().partial_scattering(params, cap, mask, moved)
         with self.stage("scattering") as keep:
             check_scene(params, cap)
@@ -245,7 +263,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 with self.stage("samples"):
                     part = trace_layout(params, layout.rows(rows))
                 table = self.section_table(params)
-                flags, rays = self.slice_blockers(params, part, s, None, table)
+                flags = self.refine(params, part, table)
+                rays = self.height_maps(params, part, s, None)
                 lo, hi = merged_bounds(state, *colour_bounds(rays.colour, rays.n), rows)
                 const = constant_colour(lo, hi)
                 values, counts = self.slice_values(params, part, flags, rays, table, const)
@@ -284,9 +303,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         with self.stage("table"):
             return point_table(params, self.table_resolution)
 
-    def slice_blockers(self, params, samples, s, shadow_map, table):
-        """Stages ``refinement`` and ``blockers`` of the slices of
-        ``samples``: the integration samples and the 1-D height maps."""
+    def refine(self, params, samples, table):
+        """Stage ``refinement`` of the slices of ``samples``: the initial
+        integration samples (a Bool per sample)."""
         with self.stage("refinement") as keep:
             flags = initial_samples(samples, self.initial_step, self.epipole_spacing)
             if self.refinement in ("depth", "visibility"):
@@ -295,10 +314,41 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 coarse = unshadowed_inscattering(params, samples, table)
                 flags |= inscattering_breaks(samples, coarse, self.refinement_threshold)
             keep.append(flags)
+        return flags
+
+    def marches_every_pixel(self, params, layout) -> bool:
+        """Whether the slices' samples on screen (counted on the host from
+        the layout) are at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
+        such small images every pixel spans a wide angle between slices, so
+        the interpolation misses the pixel centres' values (and a height
+        map of one texel per pixel misses a beam a pixel wide), while
+        marching each pixel on its own, by the fix-up's exact marcher,
+        costs no more than the samples would.  The choice depends on the
+        camera and the light alone, so a partial render makes the full
+        render's."""
+        if not self.small_image_march:
+            return False
+        cam = params.camera
+        return float(layout.on_screen.sum()) >= SMALL_IMAGE_SAMPLES * cam.width * cam.height
+
+    def every_pixel(self, params, cap, layout, s, shadow_map):
+        """Stage ``fixup`` of a frame :meth:`marches_every_pixel` marches:
+        L_scat of every camera sample by the fix-up's marcher."""
+        with self.stage("fixup") as keep:
+            out = fixup(params, cap, layout.frame, dr.zeros(mi.Color3f, cap.count),
+                        dr.zeros(mi.Float, cap.count), dr.inf, self.fixup_steps,
+                        shadow_map, bisections=self.fixup_bisections)
+            keep.append(out.L)
+        self.record(settings=s, slices=layout.slices.count, samples=0,
+                    fixup_pixels=out.fixup_count, every_pixel_marched=True)
+        return out.L
+
+    def height_maps(self, params, samples, s, shadow_map):
+        """Stage ``blockers`` of the slices of ``samples``: their 1-D
+        height maps."""
         with self.stage("blockers"):
-            rays = slice_light_rays(params, samples, s["light_rays"], self.rectification,
+            return slice_light_rays(params, samples, s["light_rays"], self.rectification,
                                     shadow_map)
-        return flags, rays
 
     def slice_values(self, params, samples, flags, rays, table, const, shadow_map=None):
         """Stages ``tree``, ``integrate`` and ``interpolate``: the value of
@@ -352,7 +402,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 ring = mi.Bool(ring)
                 dr.scatter(ring, True, disagree)
             self.record(remarched=dr.width(disagree))
-            out = fixup(params, cap, taps.L, taps.weight, self.fixup_threshold, self.fixup_steps,
+            out = fixup(params, cap, samples.frame, taps.L, taps.weight, self.fixup_threshold, self.fixup_steps,
                         shadow_map, ring, pixels, self.fixup_bisections)
             keep.append(out.L)
         return out

@@ -12,7 +12,10 @@ Each reproduces one failure of the filter that the suite of
   behind their blockers: fog under the roof lit);
 - ``sun_behind`` / ``sun_ahead``: the sun exactly behind the camera / in
   front of it, the anti-epipole / epipole at the image centre (streaks
-  radiating from the centre).
+  radiating from the centre);
+- ``spot_columns``: a spot light high beside a colonnade shining across a
+  row of columns onto the floor (the fog behind the columns and above the
+  floor, in their shadows, came out darker than the reference).
 
 Same conventions as the suite (:mod:`scenes`): black surfaces unless ``lit``,
 meters, y up, light directions the direction the light travels.
@@ -180,11 +183,36 @@ def sun_ahead(lit: bool) -> SceneXML:
 
 
 #: scene name -> builder, the stress scenes of issue 12
+def spot_columns(lit: bool) -> SceneXML:
+    """A colonnade: two rows of five round columns under a flat ceiling, a
+    spot light high beside the left row aimed down across it at the aisle's
+    floor, so the columns between the light and the floor cast shadows
+    through the lit fog and onto the floor; the camera stands at one end of
+    the aisle looking along it."""
+    s = SceneXML("Spot light shining across a row of columns onto the floor of a colonnade")
+    s.medium(Medium(sigma_t=0.12, albedo=0.9, phase=Phase("hg", 0.3)))
+    s.camera((0.5, 1.6, -6.5), (0.0, 1.8, 3.0), fov=70.0)
+    light, aim = np.array([-4.0, 5.5, 0.5]), np.array([0.8, 0.0, -0.5])
+    s.spot(light, aim, intensity=2500.0, cutoff_angle=35.0, beam_width=30.0)
+    s.medium_box((-4.4, 0.01, -6.9), (4.4, 5.99, 6.9))
+    paint = Palette(s, lit)
+    s.box("floor", paint("floor_bsdf", (0.45, 0.42, 0.38)), (-4.5, -0.2, -7.0), (4.5, 0.0, 7.0))
+    s.box("ceiling", paint("ceiling_bsdf", (0.5, 0.5, 0.5)), (-4.5, 6.0, -7.0), (4.5, 6.2, 7.0))
+    stone = paint("column_bsdf", (0.6, 0.58, 0.52))
+    for row, x in enumerate((-1.6, 1.6)):
+        for k, z in enumerate(np.linspace(4.0, -4.0, 5)):
+            s.cylinder(f"column_{row}_{k}", stone, (x, 0.0, z), (x, 6.0, z), 0.3)
+    s.box("lintel_left", stone, (-1.9, 5.4, -4.3), (-1.3, 6.0, 4.3))
+    s.box("lintel_right", stone, (1.3, 5.4, -4.3), (1.9, 6.0, 4.3))
+    return s
+
+
 SCENES = {
     "sun_room": sun_room,
     "hall": hall,
     "sun_behind": sun_behind,
     "sun_ahead": sun_ahead,
+    "spot_columns": spot_columns,
 }
 #: emitter plugin of each stress scene
 EMITTER_TYPE = {name: "directional" for name in SCENES}

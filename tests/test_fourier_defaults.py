@@ -109,7 +109,7 @@ def _exact_inputs(name="sun_room", res=(24, 18)):
     captured = {}
 
     def spy(params_, queries_, rays, smap, cover, parts, sigma_t, length=0.0, beta_b=None,
-            tail=None):
+            tail=None, kernels=None):
         captured.update(params=params_, queries=queries_, rays=rays, cover=cover, L=parts.L,
                         sigma_t=sigma_t, beta_b=beta_b)
         return parts.unshadowed(cover), dr.full(mi.Float, 1.0, queries_.count), None

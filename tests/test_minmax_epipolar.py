@@ -373,7 +373,10 @@ def test_profiles_follow_the_talk():
 # --------------------------------------------------------------------------
 
 def render(scene, **props):
-    integ = mi.load_dict({"type": "minmax_epipolar", "output": "scattering", **props})
+    """minmax_epipolar's epipolar pipeline (the test images are small
+    enough that the defaults would march every pixel instead)."""
+    integ = mi.load_dict({"type": "minmax_epipolar", "output": "scattering",
+                          "small_image_march": False, **props})
     result = integ.render_layers(scene, spp=1)
     return np.asarray(result["scattering"]), result
 
@@ -503,6 +506,7 @@ def test_quality_experiment_counts_integration_samples_and_fixups(make_scene):
     from experiments import minmax_quality as mq
     scene = make_scene(res=(24, 18))
     img, counts = mq.render_with_counts(mi.load_dict({"type": "minmax_epipolar",
+                                                      "small_image_march": False,
                                                       "output": "full"}), scene)
     assert img.shape == (18, 24, 3) and np.isfinite(img).all()
     assert set(counts) == {"integration_samples", "used_samples", "fixup_pixels"}
@@ -550,7 +554,7 @@ def test_step_budget_adds_up_to_the_renders_mean_steps(make_scene):
     integration sample add up to the render's own ``mean_steps``."""
     from experiments.minmax_step_budget import tallied_render
     scene = make_scene(light="spot_textured", res=(32, 24))
-    integ = mi.load_dict({"type": "minmax_epipolar"})
+    integ = mi.load_dict({"type": "minmax_epipolar", "small_image_march": False})
     budget = tallied_render(scene, integ)
     stats = integ.render_layers(scene, spp=1).stats
     assert set(budget) == set(mt.STEP_KINDS)

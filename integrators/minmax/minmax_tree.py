@@ -390,7 +390,10 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         ta, tb = t_edge(i), t_edge(end)
         I = V * section(ta, tb)
         if tree.state is not None:       # a uniform node's colour: its first texel's
-            I = I * dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add)
+            # (an integral that underflowed to 0 stays 0: the colour's
+            # capped light-side factor may overflow, inf·0)
+            c = dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add)
+            I = dr.select(I > 0, I * c, 0.0)
         L = dr.select(add, L + I, L)
         i_next = dr.select(done, i + size, i)
         down = level - 1

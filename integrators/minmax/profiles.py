@@ -7,10 +7,11 @@ a high-end GPU; 1366×768 and 1024×768 share one set).  ``light_rays`` (the
 talk (``D_ShadowMap × N_Slices``).
 
 Every profile also selects the talk's *method* (:data:`TALK_METHOD`):
-depth-break refinement alone and no re-march of pixels whose blended taps
-disagree.  The plugin's own defaults (profile ``none``) refine by
-visibility and re-march such pixels (correct first); ``talk`` is the talk's
-method at the default (automatic) sizes.
+depth-break refinement alone, no re-march of pixels whose blended taps
+disagree and epipolar sampling at every image size.  The plugin's own
+defaults (profile ``none``) refine by visibility, re-march such pixels and
+march every pixel of images smaller than their samples (correct first);
+``talk`` is the talk's method at the default (automatic) sizes.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ PROFILES = ("high_quality", "balanced", "high_performance")
 #: the talk's method without its sizes
 METHOD_PROFILES = ("talk",)
 #: the method options every profile sets (explicit properties override)
-TALK_METHOD = {"refinement": "depth", "remarch_disagreement": 1.0}
+TALK_METHOD = {"refinement": "depth", "remarch_disagreement": 1.0, "small_image_march": False}
 
 
 def profile_settings(profile: str, width: int, height: int) -> dict:

@@ -31,7 +31,7 @@ import mitsuba as mi
 from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
 from ..capture import CameraCapture
-from ..epipolar_setup import brute_force, disagreeing
+from ..epipolar_setup import disagreeing, peak_marched
 from ..marching import auto_spacing, march
 from ..opaque import floats, two_or_more
 from .slices_and_samples import EpipolarSamples
@@ -107,17 +107,23 @@ def unwarp_taps(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Fl
     taps = []                                   # (flat sample index, bilinear weight)
     for k, w_k in ((k0, 1.0 - f), (k1, f)):
         # position of the pixel's β on slice k's row, clamped to the row
-        u = dr.clip((beta - dr.gather(mi.Float, start, k)) / dr.gather(mi.Float, step, k),
-                    0.0, M - 1.0)
+        u_row = (beta - dr.gather(mi.Float, start, k)) / dr.gather(mi.Float, step, k)
+        u = dr.clip(u_row, 0.0, M - 1.0)
         j = dr.minimum(mi.UInt32(dr.floor(u)), M - 2)
         frac = u - mi.Float(j)
-        taps += [(k * M + j, w_k * (1.0 - frac)), (k * M + j + 1, w_k * frac)]
+        # a tap counts where its sample was traced and lies within a sample
+        # step of the pixel's β: a row clamped farther, or a sample past the
+        # slice's on-screen samples, is no estimate of the pixel
+        near = dr.abs(u_row - u) <= 1.0
+        for i, w in ((k * M + j, w_k * (1.0 - frac)), (k * M + j + 1, w_k * frac)):
+            taps.append((i, dr.select(near & dr.gather(mi.Bool, samples.used, i), w, 0.0)))
     colours = [dr.gather(mi.Color3f, values, i) for i, _ in taps]
     bilateral = [w * dr.exp(-0.5 * dr.square((dr.gather(mi.Float, samples.d, i) - pixel_depth)
                                              * inv)) for i, w in taps]
     den = sum(bilateral)
     num = sum(b * v for b, v in zip(bilateral, colours))
-    plain = sum(w * v for (_, w), v in zip(taps, colours))
+    plain_w = sum(w for _, w in taps)
+    plain = sum(w * v for (_, w), v in zip(taps, colours)) / dr.maximum(plain_w, MIN_WEIGHT)
     ok = den >= MIN_WEIGHT
     L = dr.select(ok, num / dr.select(ok, den, 1.0), plain)
     # the extremes of the taps blended in
@@ -163,7 +169,7 @@ def frame_peak(samples: EpipolarSamples, values: mi.Color3f) -> mi.Float:
     return dr.max(dr.select(samples.used, values.x + values.y + values.z, 0.0))
 
 
-def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
+def fixup(params, cap: CameraCapture, frame, L_pixel: mi.Color3f, weight: mi.Float,
           threshold: float, steps: int, shadow_map=None, also=None,
           pixels: mi.UInt32 | None = None, bisections: int = 0) -> Unwarped:
     """Re-march the pixels whose bilateral weight is below ``threshold``,
@@ -172,9 +178,10 @@ def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
     pixels ``L_pixel``, ``weight`` and ``also`` hold (None: every pixel);
     ``fixup`` lists the re-marched ones by their position there.  Traced
     blockers (no ``shadow_map``): the epipolar methods' exact marcher
-    (:func:`~integrators.epipolar_setup.brute_force`, its shadow and cone
-    edges located by ``bisections`` bisections); resampled: the shadow
-    map's."""
+    (:func:`~integrators.epipolar_setup.peak_marched`: its shadow and cone
+    edges located by ``bisections`` bisections, the pixels at a point
+    light's peak with more steps; ``frame``: the light's epipolar frame);
+    resampled: the shadow map's."""
     todo = weight < threshold
     if also is not None:
         if isinstance(also, mi.UInt32):
@@ -188,7 +195,7 @@ def fixup(params, cap: CameraCapture, L_pixel: mi.Color3f, weight: mi.Float,
         lanes = two_or_more(idx)
         sub = cap.subset(lanes if pixels is None else dr.gather(mi.UInt32, pixels, lanes))
         if shadow_map is None:
-            fixed = brute_force(params, sub, steps, bisections)
+            fixed = peak_marched(params, sub, frame, steps, bisections)
         else:
             fixed = march(params, sub, steps, shadow_map=shadow_map,
                           spacing=auto_spacing(params))
