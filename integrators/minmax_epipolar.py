@@ -4,6 +4,7 @@ live in :mod:`integrators.minmax`.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import drjit as dr
@@ -15,7 +16,7 @@ from rectify import ring_mask
 from .capture import capture_shadow_map
 from .epipolar_setup import RING_BISECTIONS
 from .minmax.integrate import integrate_samples
-from .minmax.light_rays import light_top, slice_light_rays, texel_count
+from .minmax.light_rays import MAX_ENTRY_EXPONENT, light_top, slice_light_rays, texel_count
 from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
 from .minmax.profiles import METHOD_PROFILES, PROFILES, TALK_METHOD, profile_settings
 from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial_samples,
@@ -36,6 +37,32 @@ from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
 #: samples on screen per pixel from which the defaults march every pixel
 #: instead (:meth:`MinMaxEpipolarIntegrator.marches_every_pixel`)
 SMALL_IMAGE_SAMPLES = 4
+
+
+def beyond_table_range(params) -> bool:
+    """Whether a point or spot light lies so many optical depths outside
+    the medium box that a section's in-scattering underflows float32: the
+    table (:mod:`.minmax.section_integral`) holds ``e^{-σt r}`` over the
+    whole path from the light, and the texel colour's ``e^{σt r_in}`` that
+    restores the path inside the box is capped at
+    ``MAX_ENTRY_EXPONENT`` (:func:`~.minmax.light_rays.texel_colour`):
+    ``σt (r₀ + diagonal)`` at or above the cap, with ``r₀`` the light's
+    distance to the box, leaves the lit fog black.  Such frames are marched
+    pixel by pixel (correct, at a marcher's cost), with a warning."""
+    if params.light.kind == "directional":
+        return False
+    lo, hi = params.medium.bounds_min, params.medium.bounds_max
+    p = np.asarray(params.light.position, np.float64)
+    r0 = float(np.linalg.norm(np.maximum(lo - p, 0.0) + np.maximum(p - hi, 0.0)))
+    depth = float(np.max(params.medium.sigma_t)) * (r0 + float(np.linalg.norm(hi - lo)))
+    if depth < MAX_ENTRY_EXPONENT:
+        return False
+    warnings.warn(
+        f"minmax_epipolar: the {params.light.kind} light is {r0:.3g} outside the fog box, "
+        f"{depth:.0f} optical depths from its far side: beyond the range of the in-scattering "
+        "table (float32), so every pixel is marched on its own (correct, but at a ray "
+        "marcher's cost); epipolar_tree handles such scenes at its usual speed.", stacklevel=2)
+    return True
 
 
 class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
@@ -317,8 +344,10 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         return flags
 
     def marches_every_pixel(self, params, layout) -> bool:
-        """Whether the slices' samples on screen (counted on the host from
-        the layout) are at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
+        """Whether every pixel is marched on its own: a point or spot light
+        beyond the section table's range (:func:`beyond_table_range`), or
+        the slices' samples on screen (counted on the host from the
+        layout) at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
         such small images every pixel spans a wide angle between slices, so
         the interpolation misses the pixel centres' values (and a height
         map of one texel per pixel misses a beam a pixel wide), while
@@ -326,6 +355,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         costs no more than the samples would.  The choice depends on the
         camera and the light alone, so a partial render makes the full
         render's."""
+        if beyond_table_range(params):
+            return True
         if not self.small_image_march:
             return False
         cam = params.camera

@@ -166,6 +166,12 @@ def read_choice(props, name, default, choices):
 
 def read_number(props, name, default, minimum=None, maximum=None, integer=False):
     value = props.get(name, default)
+    if isinstance(value, str):      # <string name=... value="32"/>, a dict's "32"
+        try:
+            value = float(value)
+        except ValueError:
+            raise ValueError(f"Property '{name}' = {value!r} must be a finite number "
+                             f"(e.g. <float name=\"{name}\" value=\"{default}\"/>).") from None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ValueError(f"Property '{name}' = {value!r} must be a finite number.")
     if integer and int(value) != value:
