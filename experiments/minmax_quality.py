@@ -36,9 +36,12 @@ NAME = "minmax_quality"
 SCENES = ["grove", "beam"]
 QUICK_SCENES = ["beam"]
 METHODS = {
-    "minmax depth": ("minmax_epipolar", {"refinement": "depth"}),
-    "minmax inscattering": ("minmax_epipolar", {"refinement": "inscattering"}),
-    "minmax visibility": ("minmax_epipolar", {"refinement": "visibility"}),
+    # the epipolar pipeline at every size (--quick's small images would march every pixel)
+    "minmax depth": ("minmax_epipolar", {"refinement": "depth", "small_image_march": False}),
+    "minmax inscattering": ("minmax_epipolar", {"refinement": "inscattering",
+                                                "small_image_march": False}),
+    "minmax visibility": ("minmax_epipolar", {"refinement": "visibility",
+                                              "small_image_march": False}),
     "epipolar_tree": ("epipolar_tree", {}),
 }
 

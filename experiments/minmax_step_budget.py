@@ -58,7 +58,8 @@ def main(argv=None):
     rows = []
     for name in a.scenes:
         scene = c.load(scene_path(name), c.resolution(w, h))
-        t = tallied_render(scene, c.build("minmax_epipolar", props))
+        t = tallied_render(scene, c.build("minmax_epipolar",
+                                          {"small_image_march": False, **props}))
         rows.append([name, c.fmt(sum(t.values()))] + [c.fmt(t[k]) for k in mt.STEP_KINDS])
     text = c.markdown_table(["scene", "steps/sample", *mt.STEP_KINDS], rows)
     print(text + f"\n\n{w}x{h}, mean steps per integration sample by kind.")

@@ -272,21 +272,27 @@ def point_section(sigma_t: mi.Color3f, table: PointTable, ray: PointRay, t_a, t_
     # itself (the difference of two table reads would be all interpolation error)
     short = (phi_b - phi_a) < SIMPSON_CELLS * table.cell
     phi_m = 0.5 * (phi_a + phi_b)
+    # Simpson's integrand carries e^{-σt t0} in its exponent, e^{-σt (t + r)}:
+    # on a ray leaving the light far behind it (t0 << 0, the anti-epipole of
+    # a light outside the fog), C's integrand alone underflows float32 over a
+    # short section while the product is a normal number
     simpson = (phi_b - phi_a) * (1.0 / 6.0) * (
-        integrand_of_c(table.params, sigma_t, ray.h, phi_a)
-        + 4.0 * integrand_of_c(table.params, sigma_t, ray.h, phi_m)
-        + integrand_of_c(table.params, sigma_t, ray.h, phi_b))
-    diff = dr.select(short, simpson, C_a - C_b)
+        integrand_of_c(table.params, sigma_t, ray.h, phi_a, ray.t0)
+        + 4.0 * integrand_of_c(table.params, sigma_t, ray.h, phi_m, ray.t0)
+        + integrand_of_c(table.params, sigma_t, ray.h, phi_b, ray.t0))
     # a ray starting far past the light (t0 << 0) gets C ≈ 0: keep e^{-σt t0} finite
     scale = dr.exp(dr.minimum(-sigma_t * ray.t0, MAX_EXPONENT))
-    return scale * diff / ray.h
+    return dr.select(short, simpson, scale * (C_a - C_b)) / ray.h
 
 
-def integrand_of_c(params, sigma_t, h, phi) -> mi.Color3f:
+def integrand_of_c(params, sigma_t, h, phi, t0=None) -> mi.Color3f:
     """``f_p(φ) e^{-σt h (tan φ + sec φ)}``, the integrand of ``C``
-    (``tan φ + sec φ = tan(φ/2 + π/4)``)."""
+    (``tan φ + sec φ = tan(φ/2 + π/4)``); with ``t0``, times
+    ``e^{-σt t0}`` inside the exponential (``e^{-σt (t + r)}``: no
+    underflow where that product is a normal number)."""
     ts = dr.minimum(dr.tan(0.5 * phi + 0.25 * math.pi), 1e30)
-    return phase_of_phi(params, phi) * dr.exp(-sigma_t * (h * ts))
+    x = h * ts if t0 is None else dr.maximum(h * ts + t0, 0.0)
+    return phase_of_phi(params, phi) * dr.exp(-sigma_t * x)
 
 
 def point_section_reference(params, o, omega, t_a, t_b, n=20001) -> np.ndarray:
