@@ -362,6 +362,16 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         cam = params.camera
         return float(layout.on_screen.sum()) >= SMALL_IMAGE_SAMPLES * cam.width * cam.height
 
+    def samples_alone(self, params) -> bool:
+        """A frame marched pixel by pixel (:meth:`marches_every_pixel`) with
+        traced blockers computes each camera sample from its own ray alone:
+        a partial render then marches the masked samples alone."""
+        if self.rectification != "traced":
+            return False
+        s = self.settings(params)
+        layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
+        return self.marches_every_pixel(params, layout)
+
     def every_pixel(self, params, cap, layout, s, shadow_map):
         """Stage ``fixup`` of a frame :meth:`marches_every_pixel` marches:
         L_scat of every camera sample by the fix-up's marcher."""

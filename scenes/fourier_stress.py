@@ -194,7 +194,7 @@ def spot_columns(lit: bool) -> SceneXML:
     s.camera((0.5, 1.6, -6.5), (0.0, 1.8, 3.0), fov=70.0)
     light, aim = np.array([-4.0, 5.5, 0.5]), np.array([0.8, 0.0, -0.5])
     s.spot(light, aim, intensity=2500.0, cutoff_angle=35.0, beam_width=30.0)
-    s.medium_box((-4.4, 0.01, -6.9), (4.4, 5.99, 6.9))
+    s.medium_box((-4.6, -0.3, -7.2), (4.6, 6.4, 7.2))
     paint = Palette(s, lit)
     s.box("floor", paint("floor_bsdf", (0.45, 0.42, 0.38)), (-4.5, -0.2, -7.0), (4.5, 0.0, 7.0))
     s.box("ceiling", paint("ceiling_bsdf", (0.5, 0.5, 0.5)), (-4.5, 6.0, -7.0), (4.5, 6.2, 7.0))
@@ -215,4 +215,4 @@ SCENES = {
     "spot_columns": spot_columns,
 }
 #: emitter plugin of each stress scene
-EMITTER_TYPE = {name: "directional" for name in SCENES}
+EMITTER_TYPE = {**{name: "directional" for name in SCENES}, "spot_columns": "spot"}
