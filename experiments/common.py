@@ -499,6 +499,32 @@ def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     return rows, summary
 
 
+def run_table_experiment(module, argv) -> list[dict]:
+    """The driver of an experiment with one table over scenes: parse the
+    common arguments, run ``module.measure_scene(name, settings, repeats,
+    progress)`` on every scene (checkpointed per scene), print and write
+    ``module.report(rows, settings, repeats)`` as ``table.md`` and the rows
+    as ``runs.csv`` and ``runs.json`` (with the settings, environment and
+    source state) under ``results/<module.NAME>/``.  Returns the rows."""
+    run = start_run(module, argv, module.SCENES, module.QUICK_SCENES)
+    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
+    rows = []
+    for name in run.scenes:
+        rows += scene_rows_checkpointed(
+            out / "checkpoints", name, {**s, "repeats": repeats}, args.resume,
+            lambda: module.measure_scene(name, s, repeats, progress=not args.quick))
+        print(f"{name}: done (load {load_average()})", flush=True)
+    text = module.report(rows, s, repeats)
+    print(text)
+    settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": run.scenes,
+                "reference": reference_note(s["reference_steps"]), "quick": args.quick,
+                "environment": environment(), "source": source_state()}
+    write_csv(out / "runs.csv", rows)
+    write_json(out / "runs.json", settings, rows)
+    write_text(out / "table.md", text)
+    return rows
+
+
 def scene_with_reference(name: str, s: dict, progress: bool, **defines):
     """(scene, exact reference image, its info) of suite scene ``name`` at
     ``s['width']``×``s['height']`` (plus ``defines``), the reference made

@@ -105,22 +105,7 @@ def report(rows: list[dict], s: dict, repeats: int) -> str:
 
 
 def main(argv=None) -> list[dict]:
-    run = c.start_run(sys.modules[__name__], argv, SCENES, QUICK_SCENES)
-    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
-    rows = []
-    for name in run.scenes:
-        rows += c.scene_rows_checkpointed(
-            out / "checkpoints", name, {**s, "repeats": repeats}, args.resume,
-            lambda: measure_scene(name, s, repeats, progress=not args.quick))
-        print(f"{name}: done (load {c.load_average()})", flush=True)
-    text = report(rows, s, repeats)
-    print(text)
-    c.write_csv(out / "runs.csv", rows)
-    c.write_json(out / "runs.json", {"name": NAME, **s, "repeats": repeats, "scenes": run.scenes,
-                                     "environment": c.environment(),
-                                     "source": c.source_state()}, rows)
-    c.write_text(out / "table.md", text)
-    return rows
+    return c.run_table_experiment(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":

@@ -96,24 +96,7 @@ def report(rows: list[dict], s: dict, repeats: int) -> str:
 
 
 def main(argv=None) -> list[dict]:
-    run = c.start_run(sys.modules[__name__], argv, SCENES, QUICK_SCENES)
-    args, s, repeats, out = run.args, run.settings, run.repeats, run.out
-    rows = []
-    for name in run.scenes:
-        rows += c.scene_rows_checkpointed(
-            out / "checkpoints", name, {**s, "repeats": repeats}, args.resume,
-            lambda: measure_scene(name, s, repeats, progress=not args.quick))
-        print(f"{name}: done (load {c.load_average()})", flush=True)
-    text = report(rows, s, repeats)
-    print(text)
-    settings = {"name": NAME, **s, "repeats": repeats, "scenes": run.scenes,
-                "reference": c.reference_note(s["reference_steps"]), "quick": args.quick,
-                "convention": mc.CONVENTION, "environment": c.environment(),
-                "source": c.source_state()}
-    c.write_csv(out / "runs.csv", rows)
-    c.write_json(out / "runs.json", settings, rows)
-    c.write_text(out / "table.md", text)
-    return rows
+    return c.run_table_experiment(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":

@@ -193,3 +193,24 @@ def test_reference_convergence_runs_without_a_cached_reference(capsys, tmp_path,
     row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert row["relmse_bisected_2048x12"] < row["relmse_midpoint_2048"]
     assert not any(tmp_path.iterdir())
+
+
+def test_minmax_bounded_quick(tmp_path, cache):
+    from experiments import minmax_bounded
+    rows = minmax_bounded.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
+    assert {r["method"] for r in rows} == {"epipolar_tree", "minmax_epipolar"}
+    assert all(r["status"] == "ok" and r["warm_s"] > 0 for r in rows)
+    tree, mm = (next(r for r in rows if r["method"] == m)
+                for m in ("epipolar_tree", "minmax_epipolar"))
+    assert minmax_bounded.bounded(tree, {**mm, "relmse": 9 * tree["relmse"]}) == (
+        abs(mm["mean_ratio"] - 1) <= minmax_bounded.MEAN_TOL)
+    assert not minmax_bounded.bounded(tree, {**mm, "relmse": 11 * tree["relmse"] + 1e-6})
+
+
+def test_fourier_spot_quick(tmp_path, cache):
+    from experiments import fourier_spot
+    rows = fourier_spot.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
+    assert [r["setting"] for r in rows] == list(fourier_spot.SETTINGS)
+    assert all(r["status"] == "ok" and r["peak_mb"] >= r["base_mb"] > 0 for r in rows)
