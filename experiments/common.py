@@ -467,20 +467,29 @@ def scene_rows_checkpointed(folder: Path, name: str, settings: dict, resume: boo
     return rows
 
 
+def measured_scenes(module, argv) -> tuple[Run, list[dict]]:
+    """(run, rows): the common arguments parsed (:func:`start_run`) and
+    ``module.measure_scene(name, settings, repeats, progress)``'s rows of
+    every scene, checkpointed per scene (:func:`scene_rows_checkpointed`)."""
+    run = start_run(module, argv, module.SCENES, module.QUICK_SCENES)
+    s, repeats = run.settings, run.repeats
+    rows = []
+    for name in run.scenes:
+        rows += scene_rows_checkpointed(
+            run.out / "checkpoints", name, {**s, "repeats": repeats}, run.args.resume,
+            lambda: module.measure_scene(name, s, repeats, progress=not run.args.quick))
+        print(f"{name}: done (load {load_average()})", flush=True)
+    return run, rows
+
+
 def run_speedup_experiment(module, argv, conventions: dict, **extra_settings):
     """The driver both equal-error speedup experiments share: parse the
     common arguments, run ``module.measure_scene`` on every scene, summarise
     with ``module.speedups``, and write runs.csv, speedup.csv, speedup.json,
     table.md (``module.report``) and speedup.png (``module.plot``) under
     ``results/<module.NAME>/``.  Returns (rows, summary)."""
-    run = start_run(module, argv, module.SCENES, module.QUICK_SCENES)
+    run, rows = measured_scenes(module, argv)
     args, s, repeats, out = run.args, run.settings, run.repeats, run.out
-    rows = []
-    for name in run.scenes:
-        rows += scene_rows_checkpointed(
-            out / "checkpoints", name, {**s, "repeats": repeats}, args.resume,
-            lambda: module.measure_scene(name, s, repeats, progress=not args.quick))
-        print(f"{name}: done (load {load_average()})", flush=True)
     summary = module.speedups(rows)
     text = module.report(rows, summary, s, repeats)
     print(text)
@@ -506,14 +515,8 @@ def run_table_experiment(module, argv) -> list[dict]:
     ``module.report(rows, settings, repeats)`` as ``table.md`` and the rows
     as ``runs.csv`` and ``runs.json`` (with the settings, environment and
     source state) under ``results/<module.NAME>/``.  Returns the rows."""
-    run = start_run(module, argv, module.SCENES, module.QUICK_SCENES)
+    run, rows = measured_scenes(module, argv)
     args, s, repeats, out = run.args, run.settings, run.repeats, run.out
-    rows = []
-    for name in run.scenes:
-        rows += scene_rows_checkpointed(
-            out / "checkpoints", name, {**s, "repeats": repeats}, args.resume,
-            lambda: module.measure_scene(name, s, repeats, progress=not args.quick))
-        print(f"{name}: done (load {load_average()})", flush=True)
     text = module.report(rows, s, repeats)
     print(text)
     settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": run.scenes,
@@ -533,6 +536,17 @@ def scene_with_reference(name: str, s: dict, progress: bool, **defines):
     defines = {**resolution(s["width"], s["height"]), **defines}
     ref, info = exact_reference(path, defines, s["reference_steps"], progress=progress)
     return load(path, defines), ref, info
+
+
+def timed_scattering(name: str, s: dict, settings: dict, repeats: int, progress: bool):
+    """(reference, timed): suite scene ``name`` with its exact reference
+    (:func:`scene_with_reference`) and :func:`time_renders` of every
+    ``{label: (integrator type, properties)}`` of ``settings``, output
+    ``scattering``, one sample per pixel."""
+    scene, ref, _ = scene_with_reference(name, s, progress)
+    integs = {label: build(kind, {"output": "scattering", **props})
+              for label, (kind, props) in settings.items()}
+    return ref, time_renders(scene, integs, repeats, spp=1, progress=progress)
 
 
 def speedup_text(r: dict) -> str:

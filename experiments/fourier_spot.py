@@ -64,10 +64,7 @@ def peak_memory(name: str, s: dict, kind: str, props: dict) -> dict:
 
 
 def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
-    scene, ref, _ = c.scene_with_reference(name, s, progress)
-    integs = {label: c.build(kind, {"output": "scattering", **props})
-              for label, (kind, props) in SETTINGS.items()}
-    timed = c.time_renders(scene, integs, repeats, spp=1, progress=progress)
+    ref, timed = c.timed_scattering(name, s, SETTINGS, repeats, progress)
     rows = []
     for label, r in timed.items():
         kind, props = SETTINGS[label]

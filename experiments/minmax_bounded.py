@@ -43,10 +43,7 @@ def settings_for(quick: bool) -> dict:
 
 def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
     """One row per method: errors against the reference and times."""
-    scene, ref, _ = c.scene_with_reference(name, s, progress)
-    integs = {label: c.build(kind, {"output": "scattering", **props})
-              for label, (kind, props) in METHODS.items()}
-    timed = c.time_renders(scene, integs, repeats, spp=1, progress=progress)
+    ref, timed = c.timed_scattering(name, s, METHODS, repeats, progress)
     rows = []
     for label, r in timed.items():
         row = {"scene": name, "method": label, "width": s["width"], "height": s["height"]}
