@@ -17,6 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from .capture import sample_rng, seed_offset
+from .opaque import reciprocal
 from .light_transport import (color, light_transmittance, phase_eval, point, sample_light, scalar,
                               segment_box, segment_weight, vector, visible_confirmed,
                               visible_exact)
@@ -213,7 +214,10 @@ def _bisection_steps(params, cap, steps, spacing):
     spacing (spot light): :func:`_cone_angles`' arc relative to the
     ray's start (its margin, 1e-4, far above their rounding)."""
     d = cap.d
-    uniform = lambda s: d * (s / steps)            # noqa: E731
+    # 1/steps opaque (x·reciprocal(c) is bit for bit x/c): a march of other
+    # steps (a point light's peak pixels) reuses the same kernels
+    inv_steps = reciprocal(steps)
+    uniform = lambda s: d * (s * inv_steps)        # noqa: E731
     if spacing == "uniform" or params.light.position is None:
         return uniform
     q, t0, b = closest_approach(params, cap)
@@ -230,7 +234,7 @@ def _bisection_steps(params, cap, steps, spacing):
         hi = dr.maximum(hi, lo)
 
     def t_of(s):
-        phi = lo + (hi - lo) * (s / steps)
+        phi = lo + (hi - lo) * (s * inv_steps)
         sin_phi, cos_phi = dr.sincos(phi)
         den = b * cos_phi + t0 * sin_phi          # > 0 on the ray (φ ≤ Θ < π)
         t = q2 * sin_phi / dr.select(den > 0.0, den, 1.0)
@@ -270,8 +274,8 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     # point may start behind it (a light inside a closed box leaked through
     # its faces, random seeds 43 and 98): the last test point is
     # END_NUDGE of a segment (and 1e-5 of its distance) before it
-    t_first, t_last = t_of(mi.Float(0.0)), t_of(mi.Float(steps))
-    t_test_max = dr.minimum(t_last - END_NUDGE * (t_last - t_first) / steps,
+    t_first, t_last = t_of(mi.Float(0.0)), t_of(scalar(steps))
+    t_test_max = dr.minimum(t_last - END_NUDGE * (t_last - t_first) * reciprocal(steps),
                             t_last * (1.0 - 1e-5))
 
     def lit(t, active=True, before=False):
