@@ -70,15 +70,16 @@ class CameraParams:
         size = sensor.film().crop_size()
         w, h = int(size[0]), int(size[1])
 
-        def ray(u, v):
-            r, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u, v), mi.Point2f(0.5, 0.5))
-            o = np.array([r.o[0][0], r.o[1][0], r.o[2][0]], dtype=np.float64)
-            d = np.array([r.d[0][0], r.d[1][0], r.d[2][0]], dtype=np.float64)
-            return o, d / np.linalg.norm(d)
-
-        o, f = ray(0.5, 0.5)
-        _, d1 = ray(1.0, 0.5)
-        _, d2 = ray(0.5, 1.0)
+        # the centre ray and the rays through the right and bottom edges'
+        # centres, traced together: one kernel and one read-back per frame
+        r, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f([0.5, 1.0, 0.5], [0.5, 0.5, 1.0]),
+                                 mi.Point2f(0.5, 0.5))
+        import drjit as dr
+        dr.eval(r.o, r.d)
+        o3 = np.array(r.o, dtype=np.float64).reshape(3, 3).T      # (ray, xyz)
+        d3 = np.array(r.d, dtype=np.float64).reshape(3, 3).T
+        d3 = d3 / np.linalg.norm(d3, axis=1, keepdims=True)
+        o, f, d1, d2 = o3[0], d3[0], d3[1], d3[2]
         x_axis = d1 / (d1 @ f) - f
         y_axis = d2 / (d2 @ f) - f
         # the sampled ray starts on the near plane: recover the pinhole
