@@ -18,7 +18,7 @@ DEFAULT_EPS = 1e-2
 EPS_MODES = ("relative", "absolute")
 """How relMSE's regulariser is meant (DESIGN §2): ``relative`` = ``eps *
 mean(ref)**2`` (:func:`scale_free_relmse`, the default everywhere), or
-``absolute`` = ``eps`` itself (:func:`relmse`, the numbers of the first
+``absolute`` = ``eps`` itself (:func:`relmse_absolute`, the numbers of the first
 sessions)."""
 DEFAULT_EPS_MODE = "relative"
 
@@ -99,12 +99,12 @@ def block_average(img, k: int) -> np.ndarray:
 # Pixel-wise metrics
 # --------------------------------------------------------------------------
 
-def relmse(test, ref, eps: float = DEFAULT_EPS) -> float:
+def relmse_absolute(test, ref, eps: float = DEFAULT_EPS) -> float:
     """Relative mean squared error with an *absolute* regulariser, mean over
     pixels and channels of ``(test - ref)**2 / (ref**2 + eps)``; default
     ``eps = 1e-2`` (added to the *squared* reference, so it matters where
     |ref| is below ~0.1: for dim images it is MSE / eps, and it depends on
-    the exposure -- the default everywhere is :func:`scale_free_relmse`)."""
+    the exposure -- the default everywhere is :func:`relmse`, scale-free)."""
     test, ref = _pair(test, ref)
     return float(np.mean((test - ref) ** 2 / (ref**2 + eps)))
 
@@ -126,6 +126,11 @@ def scale_free_relmse(test, ref, eps: float = DEFAULT_EPS) -> float:
     return float(np.mean((test - ref) ** 2 / (ref**2 + floor)))
 
 
+#: the relMSE every table reports: :func:`scale_free_relmse` (the
+#: exposure-dependent form is :func:`relmse_absolute`)
+relmse = scale_free_relmse
+
+
 def relmse_floor(ref, eps: float = DEFAULT_EPS, eps_mode: str = DEFAULT_EPS_MODE) -> float:
     """The term added to ``ref**2`` in relMSE's denominator: ``eps *
     mean(ref)**2`` (``relative``) or ``eps`` (``absolute``)."""
@@ -138,10 +143,10 @@ def relmse_floor(ref, eps: float = DEFAULT_EPS, eps_mode: str = DEFAULT_EPS_MODE
 def relmse_by_mode(test, ref, eps: float = DEFAULT_EPS,
                    eps_mode: str = DEFAULT_EPS_MODE) -> float:
     """:func:`scale_free_relmse` (``relative``, the default) or
-    :func:`relmse` (``absolute``)."""
+    :func:`relmse_absolute` (``absolute``)."""
     check_eps(eps, eps_mode)
     if eps_mode == "absolute":
-        return relmse(test, ref, eps)
+        return relmse_absolute(test, ref, eps)
     return scale_free_relmse(test, ref, eps)
 
 

@@ -79,13 +79,13 @@ def scene_size(path: str, defines: dict) -> float:
 def normalised_relmse(img, ref) -> float:
     """relMSE (eps 1e-2) of both images divided by the mean of ``ref``."""
     m = float(np.mean(ref))
-    return metrics.relmse(np.asarray(img) / m, np.asarray(ref) / m) if m > 0 else float("nan")
+    return metrics.relmse_absolute(np.asarray(img) / m, np.asarray(ref) / m) if m > 0 else float("nan")
 
 
 def compare_pair(img, ref, prefix: str) -> dict:
     """``<prefix>_relmse_norm``, ``<prefix>_relmse``, ``<prefix>_mean_ratio``."""
     return {f"{prefix}_relmse_norm": normalised_relmse(img, ref),
-            f"{prefix}_relmse": metrics.relmse(img, ref),
+            f"{prefix}_relmse": metrics.relmse_absolute(img, ref),
             f"{prefix}_mean_ratio": metrics.mean_ratio(img, ref)}
 
 

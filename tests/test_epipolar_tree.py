@@ -6,7 +6,7 @@ import pytest
 
 import scenes
 from episcatter import metrics
-from episcatter.metrics import relmse
+from episcatter.metrics import relmse_absolute as relmse
 from integrators.epipolar_setup import epipolar_frame_of
 from integrators.scene_params import SceneParams
 from tests.conftest import scene_dict

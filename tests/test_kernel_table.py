@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from episcatter.metrics import relmse
+from episcatter.metrics import relmse_absolute as relmse
 from integrators import kernel_table
 from integrators.kernel_separation import exp_kernel_sum, separate_channel
 from tests.conftest import scene_dict

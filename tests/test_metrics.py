@@ -22,7 +22,7 @@ REF = np.array([1.0, 1.0, 1.0, 2.0]).reshape(1, 4, 1)
 
 def test_pixelwise_metrics_by_hand():
     eps = 0.5
-    assert metrics.relmse(TEST, REF, eps) == pytest.approx((1 / 1.5 + 0 + 1 / 1.5 + 4 / 4.5) / 4)
+    assert metrics.relmse_absolute(TEST, REF, eps) == pytest.approx((1 / 1.5 + 0 + 1 / 1.5 + 4 / 4.5) / 4)
     assert metrics.rmse(TEST, REF) == pytest.approx(np.sqrt((1 + 0 + 1 + 4) / 4))
     assert metrics.mape(TEST, REF, eps) == pytest.approx((1 / 1.5 + 0 + 1 / 1.5 + 2 / 2.5) / 4)
     assert metrics.max_error(TEST, REF) == 2.0
@@ -32,7 +32,7 @@ def test_pixelwise_metrics_by_hand():
 
 def test_default_eps_is_documented():
     assert metrics.DEFAULT_EPS == 1e-2
-    assert metrics.relmse(np.array([1.0]), np.array([0.0])) == pytest.approx(100.0)
+    assert metrics.relmse_absolute(np.array([1.0]), np.array([0.0])) == pytest.approx(100.0)
 
 
 def _slow_block_average(img, k):
@@ -60,7 +60,7 @@ def test_block_average_rejects_bad_sizes():
 
 def test_identical_images(rng):
     img = rng.random((16, 16, 3))
-    assert metrics.relmse(img, img) == 0.0
+    assert metrics.relmse_absolute(img, img) == 0.0
     assert metrics.flip(img, img) == pytest.approx(0.0, abs=1e-6)
     result = metrics.compare(img, img)
     assert result["relmse"] == 0.0 and result["mean_ratio"] == 1.0
@@ -86,7 +86,7 @@ def test_shape_mismatch_names_both_shapes():
     with pytest.raises(ValueError, match=r"\(4, 4, 3\).*\(4, 5, 3\)"):
         metrics.compare(np.zeros((4, 4, 3)), np.zeros((4, 5, 3)))
     with pytest.raises(ValueError, match="shape mismatch"):
-        metrics.relmse(np.zeros(3), np.zeros(4))
+        metrics.relmse_absolute(np.zeros(3), np.zeros(4))
 
 
 def test_compare_reports_nonfinite(rng):
@@ -177,7 +177,7 @@ def test_noise_relmse_recovers_known_variance(rng, block):
     expected = sigma**2 / 2 / block**2 / (2.0**2 + metrics.DEFAULT_EPS)
     assert estimate == pytest.approx(expected, rel=0.1)
     # ...and it predicts the actual relMSE of the combined image.
-    actual = metrics.relmse(metrics.block_average((a + b) / 2, block), metrics.block_average(truth, block))
+    actual = metrics.relmse_absolute(metrics.block_average((a + b) / 2, block), metrics.block_average(truth, block))
     assert estimate == pytest.approx(actual, rel=0.1)
 
 
@@ -213,3 +213,15 @@ def test_compare_command_table_and_missing_file(tmp_path, rng, capsys):
 
     with pytest.raises(FileNotFoundError, match="missing.exr"):
         cmd_compare.run(_parse([str(tmp_path / "a.exr"), str(tmp_path / "missing.exr")]))
+
+
+def test_the_obvious_name_is_the_scale_free_relmse():
+    """``metrics.relmse`` is the relMSE every table reports (scale-free);
+    the exposure-dependent form has an explicit name."""
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.0, 0.05, (6, 5, 3))
+    test = ref * rng.uniform(0.9, 1.1, ref.shape)
+    assert metrics.relmse(test, ref) == metrics.scale_free_relmse(test, ref)
+    assert metrics.relmse(100 * test, 100 * ref) == pytest.approx(metrics.relmse(test, ref))
+    assert metrics.relmse_absolute(100 * test, 100 * ref) != pytest.approx(
+        metrics.relmse_absolute(test, ref))

@@ -3,7 +3,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from episcatter.metrics import relmse
+from episcatter.metrics import relmse_absolute as relmse
 from tests.conftest import scene_dict
 from tests.oracles import unshadowed_directional
 
