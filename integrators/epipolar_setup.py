@@ -108,7 +108,7 @@ from .light_transport import (slabs, color, first_blocker, phase_eval, point, sa
                               scalar, segment_box, segment_weight, vector, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
 from .marching import lit_spacing, march, march_bisected
-from .opaque import Divisor, floats
+from .opaque import Divisor, floats, scalar, scalar_u32
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5
@@ -1377,13 +1377,11 @@ def peak_marched(params, cap: CameraCapture, frame, steps: int,
     pixel = 2.0 * max(float(np.linalg.norm(cam.x_axis)) / cam.width,
                       float(np.linalg.norm(cam.y_axis)) / cam.height)
     beta = direction_to_alpha_beta(frame, cap.omega)[1]
-    peak = dr.minimum(beta, math.pi - beta) < pixel
-    out = brute_force(params, cap, steps, bisections)
-    near = dr.compress(peak)
-    if dr.width(near):
-        fine = brute_force(params, cap.subset(near), PEAK_STEP_FACTOR * steps, bisections)
-        dr.scatter(out, fine, near)
-    return out
+    # the pixel's angle opaque: it moves in the last bits with the camera
+    peak = dr.minimum(beta, math.pi - beta) < scalar(pixel)
+    # one march, the steps per ray (marching.step_count)
+    lane_steps = dr.select(peak, scalar_u32(PEAK_STEP_FACTOR * steps), scalar_u32(steps))
+    return brute_force(params, cap, lane_steps, bisections)
 
 
 def disagreeing_samples(queries: EpipolarQueries, values, tolerance: float) -> mi.UInt32:

@@ -51,6 +51,17 @@ def step_boundaries(params, cap, steps, spacing):
     return _steps(params, cap, steps, spacing)[0]
 
 
+def step_count(steps):
+    """(loop bound, 1/steps) of a march of ``steps`` segments: an int (the
+    same for every ray) or an ``mi.UInt32`` per ray; both opaque, and
+    ``x·(1/steps)`` is bit for bit the ``x/steps`` of a kernel with the
+    literal (the correctly rounded float32 reciprocal either way), so
+    marches of any steps share their kernels."""
+    if isinstance(steps, mi.UInt32):
+        return steps, 1.0 / mi.Float(steps)
+    return dr.opaque(mi.UInt32, steps), reciprocal(steps)
+
+
 def _steps(params, cap, steps, spacing):
     """(t(s), inverse-square correction c(s)) of :func:`step_boundaries`.
     ``c(s, offset)`` turns segment s's ``Δt / r²`` at the point the light
@@ -142,7 +153,7 @@ def march(params, cap, steps, shadow_map=None, jitter=False, seed=0, spacing="un
                             seed_offset(seed, 0x853C49E6748FEA9B)).next_float32()
     else:
         offset = mi.Float(0.5)
-    n_steps = dr.opaque(mi.UInt32, steps)
+    n_steps, _ = step_count(steps)
 
     def body(k, L):
         s = mi.Float(k)
@@ -214,9 +225,7 @@ def _bisection_steps(params, cap, steps, spacing):
     spacing (spot light): :func:`_cone_angles`' arc relative to the
     ray's start (its margin, 1e-4, far above their rounding)."""
     d = cap.d
-    # 1/steps opaque (x·reciprocal(c) is bit for bit x/c): a march of other
-    # steps (a point light's peak pixels) reuses the same kernels
-    inv_steps = reciprocal(steps)
+    _, inv_steps = step_count(steps)
     uniform = lambda s: d * (s * inv_steps)        # noqa: E731
     if spacing == "uniform" or params.light.position is None:
         return uniform
@@ -266,7 +275,7 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     n = dr.width(cap.d)
     sigma_t = color(params.medium.sigma_t)
     t_of = _bisection_steps(params, cap, steps, spacing)
-    n_steps = dr.opaque(mi.UInt32, steps)
+    n_steps, inv_steps = step_count(steps)
     n_bis = dr.opaque(mi.UInt32, bisections)
     approach = None if params.light.position is None else closest_approach(params, cap)
 
@@ -274,8 +283,8 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     # point may start behind it (a light inside a closed box leaked through
     # its faces, random seeds 43 and 98): the last test point is
     # END_NUDGE of a segment (and 1e-5 of its distance) before it
-    t_first, t_last = t_of(mi.Float(0.0)), t_of(scalar(steps))
-    t_test_max = dr.minimum(t_last - END_NUDGE * (t_last - t_first) * reciprocal(steps),
+    t_first, t_last = t_of(mi.Float(0.0)), t_of(mi.Float(n_steps))
+    t_test_max = dr.minimum(t_last - END_NUDGE * (t_last - t_first) * inv_steps,
                             t_last * (1.0 - 1e-5))
 
     def lit(t, active=True, before=False):
