@@ -520,8 +520,9 @@ def run_table_experiment(module, argv) -> list[dict]:
     text = module.report(rows, s, repeats)
     print(text)
     settings = {"name": module.NAME, **s, "repeats": repeats, "scenes": run.scenes,
-                "reference": reference_note(s["reference_steps"]), "quick": args.quick,
-                "environment": environment(), "source": source_state()}
+                "quick": args.quick, "environment": environment(), "source": source_state()}
+    if "reference_steps" in s:
+        settings["reference"] = reference_note(s["reference_steps"])
     write_csv(out / "runs.csv", rows)
     write_json(out / "runs.json", settings, rows)
     write_text(out / "table.md", text)

@@ -214,3 +214,11 @@ def test_fourier_spot_quick(tmp_path, cache):
     check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
     assert [r["setting"] for r in rows] == list(fourier_spot.SETTINGS)
     assert all(r["status"] == "ok" and r["peak_mb"] >= r["base_mb"] > 0 for r in rows)
+
+
+def test_launches_quick(tmp_path):
+    from experiments import launches
+    rows = launches.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
+    assert {r["method"] for r in rows} == set(launches.METHODS)
+    assert all(r["launched"] >= r["distinct"] > 0 and r["compiled"] == 0 for r in rows)

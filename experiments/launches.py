@@ -1,0 +1,66 @@
+"""JIT kernels one warm frame launches, per suite scene and integrator at
+its defaults: what each frame costs in launches and host round trips on a
+GPU, where a launch (and the synchronisation around a read-back) costs more
+than the arithmetic of a small kernel.
+
+Per scene and method: a first render (compiles or loads the kernels), then
+one more render inside :func:`episcatter.kernels.kernel_log`: JIT kernels
+launched, and of them distinct (by source hash: the kernels an empty cache
+would compile).
+
+Writes ``results/launches/``: ``runs.csv``, ``runs.json``, ``table.md``.
+``python -m experiments.launches [--size 640x480] [--scenes ...] [--quick]``.
+"""
+from __future__ import annotations
+
+import sys
+
+from . import common as c
+
+NAME = "launches"
+SCENES = ["beam", "grove", "hall", "nave_offscreen", "nave_onscreen", "point_fog", "spot_room",
+          "sun_ahead", "sun_behind", "sun_room", "terrain"]
+QUICK_SCENES = ["point_fog"]
+METHODS = ["raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar"]
+
+
+def settings_for(quick: bool) -> dict:
+    return {"width": 48, "height": 36} if quick else {"width": 640, "height": 480}
+
+
+def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict]:
+    import drjit as dr
+    import mitsuba as mi
+
+    from episcatter.kernels import kernel_log
+
+    scene = c.load(c.scene_file(name), c.resolution(s["width"], s["height"]))
+    rows = []
+    for kind in METHODS:
+        integ = c.build(kind, {})
+        dr.eval(mi.render(scene, integrator=integ, spp=1))
+        with kernel_log() as log:
+            dr.eval(mi.render(scene, integrator=integ, spp=1))
+        rows.append({"scene": name, "method": kind, "width": s["width"], "height": s["height"],
+                     "launched": log.launched, "compiled": log.compiled,
+                     "distinct": len({k.get("hash") for k in log.entries})})
+    return rows
+
+
+def report(rows: list[dict], s: dict, repeats: int) -> str:
+    by = {(r["scene"], r["method"]): r for r in rows}
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    table = [[name] + [f"{by[name, m]['launched']} ({by[name, m]['distinct']})" for m in METHODS]
+             for name in scenes]
+    head = (f"# JIT kernels launched per warm frame, {s['width']}x{s['height']}\n\n"
+            "Each cell: launched (distinct sources).  One render after a first one, at the "
+            "integrator's defaults, 1 sample per pixel.\n\n")
+    return head + c.markdown_table(["scene"] + METHODS, table)
+
+
+def main(argv=None) -> list[dict]:
+    return c.run_table_experiment(sys.modules[__name__], argv)
+
+
+if __name__ == "__main__":
+    main()
