@@ -249,8 +249,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 shadow_map = capture_shadow_map(params, cap, s["shadowmap_resolution"])
         with self.stage("samples"):
             layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
-            if self.marches_every_pixel(params, layout):
-                return self.every_pixel(params, cap, layout, s, shadow_map)
+        if self.marches_every_pixel(params, layout):
+            return self.every_pixel(params, cap, layout, s, shadow_map)
+        with self.stage("samples"):
             samples = trace_layout(params, layout)
         table = self.section_table(params)
         flags = self.refine(params, samples, table)
