@@ -132,8 +132,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                                 that splits their interval (default 0.05)
     ``rectification``           ``traced`` (default) or ``resampled``
     ``light_rays``              texels per slice, a power of two (default 0:
-                                above the image diagonal; resampled: above
-                                the shadow map's size along a slice)
+                                above the image diagonal, at least 1024;
+                                resampled: above the shadow map's size
+                                along a slice)
     ``shadowmap_resolution``    classic shadow map size (resampled, fix-up)
                                 (default 2048)
     ``min_max``                 use the tree (default true; false: march

@@ -217,7 +217,16 @@ def cell_depth_bounds(frame, shadow_map, alpha, gamma, delta, k, u_top, o, w):
     return z_lo, z_hi
 
 
+#: fewest default texels per slice: a height map samples its light rays at
+#: one point per texel, so a blocker edge is placed to a texel and a gap
+#: thinner than a texel may be missed; on images under about 400×300
+#: pixels one texel per pixel is too coarse for a window's mullions or a
+#: slot in a ceiling (results/minmax_bounded)
+MIN_TEXELS = 1024
+
+
 def texel_count(width: int, height: int) -> int:
     """Default texels per slice: the next power of two above the image
-    diagonal (about one light ray per pixel along the longest slice)."""
-    return 1 << max(5, math.ceil(math.log2(math.hypot(width, height))))
+    diagonal (about one light ray per pixel along the longest slice), at
+    least ``MIN_TEXELS``."""
+    return max(MIN_TEXELS, 1 << max(5, math.ceil(math.log2(math.hypot(width, height)))))
