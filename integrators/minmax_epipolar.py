@@ -166,7 +166,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
 
     One camera sample per pixel centre (the talk's convention).  The
     ``stats`` of :meth:`render_layers`'s result hold the counts of the render
-    (integration samples, fix-up pixels, mean march steps).
+    (integration samples, fix-up pixels, mean march steps; ``every_pixel_marched``
+    when the frame was marched pixel by pixel).
     """
 
     def read_properties(self, props):
