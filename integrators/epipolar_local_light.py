@@ -195,7 +195,7 @@ def resolve_lit_cone(params, frame, slices):
 
     A narrow spot lights few pixels, and their pixel centres' rays skim a
     beam a fraction of a pixel wide: a sample half a slice spacing from
-    its slice then sees another part of the beam (issue 13, the narrow
+    its slice then sees another part of the beam (the random stress set: the narrow
     spots: seeds 40, 117, 205 ... with 5 to 44 lit slices, mean -3 ... -5 %).
     Each gap between consecutive slices from the one before the first lit
     slice to the one after the last is split into ⌈MIN_LIT_SLICES / lit⌉
@@ -242,7 +242,7 @@ def cone_samples(params, queries: EpipolarQueries) -> mi.UInt32:
     (at most CONE_MARCH_FRACTION of the samples, or CONE_MARCH_MIN); else
     none.  Their pixel centres' rays skim a beam a fraction of a pixel
     wide, which the slices (even :func:`resolve_lit_cone`'s) resolve only
-    to a few percent of its energy (issue 13, seeds 128, 216, 227: mean
+    to a few percent of its energy (random stress seeds 128, 216, 227: mean
     −3 … +11 %); the tree marches them like the ring
     (:func:`~integrators.epipolar_setup.remarch_samples`), at the cost of
     a few pixels' ring steps.  The budget is decided on the whole frame
@@ -808,7 +808,7 @@ class LocalSeparation:
     than ~L/Δγ from the eye lies in those cells, so the whole rise of E
     (the camera-side transmittance) happens within ~1e-4 rad of the
     asymptote: a step along the diagonal β + γ = π that no rank-24 kernel
-    resolves (issue 13, seeds 79, 233, 266: separation error 0.13 at rank
+    resolves (random stress seeds 79, 233, 266: separation error 0.13 at rank
     24, per-query sums off by up to 5 %)."""
     band_cells: int = 0
 
@@ -866,7 +866,7 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
     Fajardo 2012: dt/r² = dθ/b, b the ray's distance from the light), so
     that 1/r² is integrated exactly: with the light a few near-plane
     distances from the eye, 1/r² changes by ~2× along the segment and one
-    midpoint sample missed ~2 % of it (issue 13, seed 79: +0.5 % on the
+    midpoint sample missed ~2 % of it (random stress seed 79: +0.5 % on the
     image).  Where t_near ≤ NEAR_RATIO·L (the suite), or the ray passes
     through the light (b ≈ 0), one midpoint sample."""
     sigma_t = color(params.medium.sigma_t)

@@ -507,7 +507,7 @@ def light_side_step(params, rays: LightRays) -> float:
     the box through a face nearly parallel to them, h changes by
     cot(grazing angle) per unit γ: σt·|Δh| ≈ 0.6 per light ray made the
     midpoint value of L, and its covariance with the kernel over the
-    interval, 2.5 % low (issue 13, seed 206; converging as 1/d²).
+    interval, 2.5 % low (random stress seed 206; converging as 1/d²).
     :func:`light_ray_grid` takes as many more light rays as bring this
     below ``LIGHT_SIDE_STEP``."""
     d = rays.d
@@ -1210,7 +1210,7 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
     query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
     of its parts -- below their own rounding error.  (Counted over the
     whole row, the bound flushed lit queries that end early in a row whose
-    far light rays carry e^{20} more light: issue 13, seed 31.)"""
+    far light rays carry e^{20} more light: random stress seed 31.)"""
     a, nA, d, CA, N = factor_arrays(A, True)
     b, nB, _, CB, _ = factor_arrays(B, True)
     C = max(CA, CB, 1 if L is None else factor_arrays(L, False)[3])
@@ -1259,7 +1259,7 @@ def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -
     query's value, and all of it where L grows along the slice by
     e^{20…30} while the view ray's kernel decays as fast (a thick medium
     seen away from a light whose light-side path shrinks along the slice,
-    issue 13 seed 31: 28× the exact sum).  Such samples are ray-marched
+    random stress seed 31: 28× the exact sum).  Such samples are ray-marched
     instead (:func:`remarch_samples`)."""
     if not queries.count:
         return dr.zeros(mi.UInt32, 0)

@@ -330,7 +330,7 @@ def series_unreliable(near, S, P) -> mi.Bool:
     above ``NEAR_FLOOR`` of the unshadowed weight ``P``.  Receivers right
     behind their blockers -- fog in front of a surface seen from its
     shadowed side, a view ray grazing an occluder -- read up to half the
-    weight of those texels as light that is not there (issue 12: a point
+    weight of those texels as light that is not there (a point
     light inside a closed box, random stress seed 43, 1.3e-2 of the
     unoccluded peak where the exact answer is 0)."""
     return (near > NEAR_TOLERANCE * S) & (near > NEAR_FLOOR * P)

@@ -14,7 +14,7 @@ texels in between hold the other side of the surface.  Seen from the
 shadowed side -- a point light inside a closed box, the camera outside it
 -- the slice's plane puts the inside of the box, lit, on the last texels:
 light at the end of a ray that is in shadow all along, with the 1/r² of
-fog next to the light (issue 12, random stress seed 43: 2.3e-3 of the
+fog next to the light (random stress seed 43: 2.3e-3 of the
 unoccluded peak with the exact sum).  Seen from the lit side it darkens
 the end of the ray.
 

@@ -180,7 +180,7 @@ def checked_tolerances(separation, params, queries, rays, channels, kernels, tol
     The sweep sums K·L·V, and where the light factor L grows along γ as
     fast as K decays (a view ray toward the light in a thick medium: the
     camera-side path grows as the light-side path shrinks) the sum is
-    e^{-10…-20} of ∫K dγ and all error (issue 13, seeds 72, 86).  Here
+    e^{-10…-20} of ∫K dγ and all error (random stress seeds 72, 86).  Here
     ``separation.sum_error`` measures, for each row's first and last query
     and every light ray, Σ |K̃ − K|·L against the frame's largest
     unshadowed sum; a channel whose ratio exceeds its tolerance is

@@ -146,7 +146,7 @@ def visible_exact(params, x, wo, dist, t_in, t_out, active=True):
     the gaps around the crossings inside its bounds are tested too
     (:func:`_gap_hit`): an occluder sticking out of the medium box
     would otherwise let light through along the line where it crosses
-    the box (issue 13, seeds 43, 54, 98)."""
+    the box (random stress seeds 43, 54, 98)."""
     blocked = mi.Bool(False)
     pieces = box_segments(params, t_in, t_out, dist)
     for a, b in pieces:
@@ -201,7 +201,7 @@ def visible_confirmed(params, x, wo, dist, t_in, t_out, active=True, confirm=Tru
     edge lies within the shift, the ray shifted the other way).  A ray
     through a shared edge of two triangles can slip between them (Mitsuba's
     ray-triangle tests are not watertight): a light inside a closed cube
-    then lit one pixel of the working reference (issue 13, random seeds 208,
+    then lit one pixel of the working reference (random stress seeds 208,
     263 and 274, where the shadow ray ran along a face's diagonal).  Such a
     crack is a set of measure zero: both shifted rays miss it, while a point
     that is truly lit has a lit ray on at least one side.  ``confirm``: the

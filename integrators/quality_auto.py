@@ -1,5 +1,5 @@
 """``quality="auto"``: an integrator chooses its own settings for a relMSE
-budget (issue 16, item 4).
+budget.
 
 Common properties (every method, read by the template):
 

@@ -33,3 +33,15 @@ def test_design_doc_names_modules_that_exist():
         assert (ROOT / rel).exists(), rel
     for name in re.findall(r"experiments\.(\w+)", text):
         assert (ROOT / "experiments" / f"{name}.py").exists(), name
+
+
+def test_no_issue_numbers_in_library_docstrings():
+    """Docstrings state the contract and cite the papers and the design;
+    issue numbers belong to the tracker and closing notes."""
+    hits = []
+    for folder in ("integrators", "rectify", "episcatter"):
+        for path in (ROOT / folder).rglob("*.py"):
+            for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                if re.search(r"\bissue \d+|\(issue\b", line, flags=re.I):
+                    hits.append(f"{path.relative_to(ROOT)}:{i}")
+    assert not hits, hits

@@ -33,7 +33,7 @@ closest point to the light (point/spot), so the two end points bound it
 the tree's sections are unions of the per-texel ones.  ``max_level = 0`` is
 the per-texel march itself (the talk's brute force along the slice).
 
-Lit runs (issue 14): a node lit by its depth test but of ``MIXED`` colour
+Lit runs: a node lit by its depth test but of ``MIXED`` colour
 (a spot's fall-off rim, the edges of a projected texture's panes) has every
 texel lit, only their colours differ.  The march remembers that (``run_end``,
 the node's end) and descends; inside the run no depth test can fail, and it
