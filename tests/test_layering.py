@@ -13,7 +13,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = ("integrators", "rectify", "episcatter", "experiments")
 #: the plugin modules: class + docstring + registration
-PLUGINS = ("integrators.raymarch", "integrators.epipolar_tree", "integrators.fourier_filter")
+#: the plugin modules: every module of integrators/ that registers one
+PLUGINS = tuple(sorted(
+    "integrators." + ".".join(p.relative_to(ROOT / "integrators").with_suffix("").parts)
+    for p in (ROOT / "integrators").rglob("*.py")
+    if "mi.register_integrator(" in p.read_text(encoding="utf-8")))
 
 
 def module_name(path: Path) -> str:
@@ -59,6 +63,8 @@ def library_files():
 def test_library_files_are_found():
     names = {module_name(p) for p in library_files()}
     assert set(PLUGINS) <= names and "rectify.slices" in names
+    assert {"integrators.raymarch", "integrators.epipolar_tree", "integrators.fourier_filter",
+            "integrators.minmax_epipolar"} <= set(PLUGINS)
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "rectify").rglob("*.py")),
