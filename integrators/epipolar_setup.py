@@ -1075,12 +1075,11 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
     (One ray from the middle was tried first: it removes the leak as well,
     but turns a shadow edge inside an almost fully covered interval next to
     the epipole, which the modes resolve, into an error of up to half the
-    interval: nave_onscreen's max error rose from 0.9 % to 1.7 % of the
-    peak.)  Elsewhere all sub-rays of the interval and of the previous one
-    agree and the leaf's visibility is kept: at 1280×960 nave_offscreen
-    traces for 3.8 % of its queries (+13 ms, about 4 % of the scattering
-    stage), point_fog, with its lit walls, for 60 %.  The correction of the
-    sweep's sum is :func:`last_interval_correction`.
+    interval.)  Elsewhere all sub-rays of the interval and of the previous
+    one agree and the leaf's visibility is kept, so only the queries whose
+    last interval holds a shadow edge are traced (a few percent on an
+    open nave, most of them on a point light's lit walls).  The correction
+    of the sweep's sum is :func:`last_interval_correction`.
 
     ``D``: the sweep's (n, r) depths (:func:`last_leaf`)."""
     k0, f = last_leaf(queries, rays, D)

@@ -143,10 +143,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                the light ray's centre)
     ``adaptive_prefilter``     trace the sub-rays only where the blockers
                                at the light-ray boundaries are not smooth,
-                               interpolate them elsewhere (default true:
-                               blockers ~2× faster at equal error on the
-                               nave and terrain; foliage rows are traced in
-                               full, :func:`~integrators.epipolar_setup._smooth_intervals`)
+                               interpolate them elsewhere (default true;
+                               foliage rows are traced in full,
+                               :func:`~integrators.epipolar_setup._smooth_intervals`)
     ``remarch_disagreement``   with ``slice_interpolation``: a camera
                                sample whose two slices' values differ by
                                more than this fraction of the larger (and
