@@ -108,7 +108,7 @@ from .light_transport import (slabs, color, first_blocker, phase_eval, point, sa
                               scalar, segment_box, segment_weight, vector, visible_exact)
 from .partial_sum_tree import BlockerModes, factor_layout
 from .marching import lit_spacing, march, march_bisected
-from .opaque import Divisor, floats, scalar, scalar_u32
+from .opaque import Divisor, floats, scalar_u32
 
 #: view rays closer than this to ±w_l [rad] are always ray-marched (sin β → 0)
 MIN_RING_RAD = 1e-5

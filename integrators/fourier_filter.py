@@ -664,7 +664,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return V, drop
 
     def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
-                             refs, beta_b=None, tail=None, kernels=None):
+                             refs, beta_b, tail, kernels: dict):
         """(V̄, S, P, near): the weighted average visibility with the weights
         of each query's mix of its two nearest reference rays
         (:mod:`integrators.fourier_references`), one filter per reference
@@ -673,8 +673,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         (:meth:`~integrators.fourier_tail.TailVisibility.correction`);
         ``kernels``: reference ray k's kernel of this σt, kept for the other
         channels (:meth:`channel_sums`)."""
-        kernels = {} if kernels is None else kernels
-
         def weighted_sum(k, rows):
             if ("kernel", sigma_t, k) not in kernels:
                 K = row_kernel(params, queries, rays, sigma_t, refs.beta[k])

@@ -28,7 +28,7 @@ from .minmax.slice_subset import (SliceState, computed_pixels, dirty_slices, mer
 from .minmax.slices_and_samples import sample_layout, trace_layout
 from .minmax.unscattered import unshadowed_inscattering
 from .minmax.unwarp import (DEPTH_SIGMA, disagreeing_pixels, fixup, frame_peak,
-                            unwarp_taps)
+                            march_every_pixel, unwarp_taps)
 from .minmax.validate import check_scene
 from .opaque import two_or_more
 from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
@@ -352,10 +352,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         the slices' samples on screen (counted on the host from the
         layout) at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
         such small images every pixel spans a wide angle between slices, so
-        the interpolation misses the pixel centres' values (and a height
-        map of one texel per pixel misses a beam a pixel wide), while
-        marching each pixel on its own, by the fix-up's exact marcher,
-        costs no more than the samples would.  The choice depends on the
+        the interpolation misses the pixel centres' values, while marching
+        each pixel on its own, by the fix-up's exact marcher, costs no more
+        than the samples would.  The choice depends on the
         camera and the light alone, so a partial render makes the full
         render's."""
         if beyond_table_range(params):
@@ -379,9 +378,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         """Stage ``fixup`` of a frame :meth:`marches_every_pixel` marches:
         L_scat of every camera sample by the fix-up's marcher."""
         with self.stage("fixup") as keep:
-            out = fixup(params, cap, layout.frame, dr.zeros(mi.Color3f, cap.count),
-                        dr.zeros(mi.Float, cap.count), dr.inf, self.fixup_steps,
-                        shadow_map, bisections=self.fixup_bisections)
+            out = march_every_pixel(params, cap, layout.frame, self.fixup_steps, shadow_map,
+                                    self.fixup_bisections)
             keep.append(out.L)
         self.record(settings=s, slices=layout.slices.count, samples=0,
                     fixup_pixels=out.fixup_count, every_pixel_marched=True)
@@ -446,8 +444,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 ring = mi.Bool(ring)
                 dr.scatter(ring, True, disagree)
             self.record(remarched=dr.width(disagree))
-            out = fixup(params, cap, samples.frame, taps.L, taps.weight, self.fixup_threshold, self.fixup_steps,
-                        shadow_map, ring, pixels, self.fixup_bisections)
+            out = fixup(params, cap, samples.frame, taps.L, taps.weight, self.fixup_threshold,
+                        self.fixup_steps, shadow_map, ring, pixels, self.fixup_bisections)
             keep.append(out.L)
         return out
 

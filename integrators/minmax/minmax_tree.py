@@ -293,6 +293,13 @@ def step_kind(lit_depth, dark_depth, state, leaf):
     return dr.select(black, mi.UInt32(4), k)
 
 
+def coloured(I, colour):
+    """A section's unit-colour integral ``I`` times the light's ``colour``;
+    an integral that underflowed to 0 stays 0 (the colour's capped
+    light-side factor may overflow: inf·0)."""
+    return dr.select(I > 0, I * colour, 0.0)
+
+
 def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTree,
                rays: SliceRays, section, max_level: int | None = None,
                leaf_visibility=None, tally: bool = False,
@@ -390,10 +397,7 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
         ta, tb = t_edge(i), t_edge(end)
         I = V * section(ta, tb)
         if tree.state is not None:       # a uniform node's colour: its first texel's
-            # (an integral that underflowed to 0 stays 0: the colour's
-            # capped light-side factor may overflow, inf·0)
-            c = dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add)
-            I = dr.select(I > 0, I * c, 0.0)
+            I = coloured(I, dr.gather(mi.Color3f, light_rays.colour, rays.k * n + i, add))
         L = dr.select(add, L + I, L)
         i_next = dr.select(done, i + size, i)
         down = level - 1
@@ -426,9 +430,7 @@ def march_tree(frame: EpipolarFrame, light_rays: SliceLightRays, tree: MinMaxTre
             on &= V > 0
             I = section(ta, tb)
             if tree.state is not None:
-                # a section integral that underflowed to 0 stays 0 (the
-                # colour's capped light-side factor may overflow: inf·0)
-                I = dr.select(I > 0, I * c, 0.0)
+                I = coloured(I, c)
             return dr.select(on, I, 0.0)
 
         L0 += end_section(head, i_first, t_lo, t_edge(i_first + 1))

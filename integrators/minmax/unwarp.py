@@ -193,11 +193,28 @@ def fixup(params, cap: CameraCapture, frame, L_pixel: mi.Color3f, weight: mi.Flo
     L = mi.Color3f(L_pixel)
     if dr.width(idx):
         lanes = two_or_more(idx)
-        sub = cap.subset(lanes if pixels is None else dr.gather(mi.UInt32, pixels, lanes))
-        if shadow_map is None:
-            fixed = peak_marched(params, sub, frame, steps, bisections)
-        else:
-            fixed = march(params, sub, steps, shadow_map=shadow_map,
-                          spacing=auto_spacing(params))
-        dr.scatter(L, fixed, lanes)
+        samples = lanes if pixels is None else dr.gather(mi.UInt32, pixels, lanes)
+        dr.scatter(L, march_samples(params, cap, samples, frame, steps, shadow_map, bisections),
+                   lanes)
     return Unwarped(L=L, weight=weight, fixup=idx)
+
+
+def march_every_pixel(params, cap: CameraCapture, frame, steps: int, shadow_map=None,
+                      bisections: int = 0) -> Unwarped:
+    """:func:`fixup`'s march of every camera sample of ``cap`` (a frame
+    the plugin marches pixel by pixel)."""
+    n = cap.count
+    lanes = two_or_more(dr.arange(mi.UInt32, n))
+    L = dr.zeros(mi.Color3f, n)
+    dr.scatter(L, march_samples(params, cap, lanes, frame, steps, shadow_map, bisections), lanes)
+    return Unwarped(L=L, weight=dr.zeros(mi.Float, n), fixup=dr.arange(mi.UInt32, n))
+
+
+def march_samples(params, cap: CameraCapture, samples: mi.UInt32, frame, steps: int,
+                  shadow_map=None, bisections: int = 0) -> mi.Color3f:
+    """L_scat of the camera samples ``samples`` of ``cap`` by the fix-up's
+    marcher (:func:`fixup`: traced blockers or the shadow map's)."""
+    sub = cap.subset(samples)
+    if shadow_map is None:
+        return peak_marched(params, sub, frame, steps, bisections)
+    return march(params, sub, steps, shadow_map=shadow_map, spacing=auto_spacing(params))
