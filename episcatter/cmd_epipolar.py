@@ -38,7 +38,7 @@ def light_geometry(params):
 
 def scene_geometry(scene_path, defines=None, ring_deg=2.0) -> dict:
     """rectify.describe() of a scene file's camera and light."""
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
     from rectify.describe import describe
 
     params = SceneParams.from_scene(load_scene(scene_path, defines))
@@ -49,7 +49,7 @@ def scene_geometry(scene_path, defines=None, ring_deg=2.0) -> dict:
 
 def write_overlay(args, defines) -> dict:
     """The ``--png`` drawing (:func:`episcatter.epipolar_overlay.draw_overlay`)."""
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
     from rectify.epipole import epipolar_frame
 
     from .epipolar_overlay import draw_overlay, preview_image

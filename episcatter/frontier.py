@@ -540,14 +540,14 @@ def defines_for(budget: str, defines: dict | None = None, sizes: dict | None = N
 
 
 # --------------------------------------------------------------------------
-# Error budget: the integrators' quality="auto" (integrators.quality_auto)
+# Error budget: the integrators' quality="auto" (integrators.core.quality_auto)
 # --------------------------------------------------------------------------
 
 def settings_for_budget(scene, method: str, budget: float) -> dict:
     """Integrator properties of ``method`` that ``quality="auto"`` chooses
     to render the loaded Mitsuba ``scene`` at relMSE <= ``budget``
     (pixel-centre convention against ``raymarch visibility=exact``): the
-    probe and rule of :mod:`integrators.quality_auto`."""
-    from integrators.quality_auto import choose
+    probe and rule of :mod:`integrators.core.quality_auto`."""
+    from integrators.core.quality_auto import choose
 
     return choose(scene, method, budget)[0]

@@ -10,7 +10,7 @@ Two kinds of reference are rendered from the *same* scene file:
 ``exact``
     ``raymarch`` with ``visibility="exact"``, many ``steps`` and
     :data:`EXACT_BISECTIONS` boundary bisections
-    (:func:`integrators.marching.march_bisected`): deterministic along each
+    (:func:`integrators.core.marching.march_bisected`): deterministic along each
     camera ray, the working reference once it agrees with volpath.  Its
     samples per pixel only antialias (jittered box filter).
 
@@ -91,7 +91,7 @@ def _kind_settings(kind: str, steps: int | None) -> dict:
                 "steps": int(steps or DEFAULT_EXACT_STEPS),
                 "boundary_bisections": EXACT_BISECTIONS,
                 # lit rises confirmed by a shifted shadow ray (mesh cracks,
-                # light_transport.visible_confirmed): references cached before differ
+                # core.light_transport.visible_confirmed): references cached before differ
                 "crack_confirmation": 1}
     raise ValueError(f"Reference kind '{kind}' is not one of {list(KINDS)}.")
 

@@ -103,7 +103,7 @@ def check_volpath_medium(scene) -> None:
     a sensor medium whose σt is zero in some channels but not all (volpath
     samples free-flight distances per channel and divides by σt).  Scenes our
     integrators do not read (no medium on the sensor, ...) are not checked."""
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
 
     try:
         sigma_t = SceneParams.from_scene(scene).medium.sigma_t

@@ -9,11 +9,11 @@ each frame it
 1. poses the moving shapes (:class:`episcatter.motion.ShapeAnimator`);
 2. reads the scene (camera, light, medium);
 3. computes the change mask before any capture or scattering work
-   (:func:`integrators.change_mask.change_mask`, on the last frame's
+   (:func:`integrators.partial.change_mask.change_mask`, on the last frame's
    capture): the samples whose segment meets a moving object's bounded
    shadow volume in the previous or the current frame; every sample when
    the camera, light or medium changed
-   (:func:`integrators.change_mask.whole_frame_changes`) or on the first
+   (:func:`integrators.partial.change_mask.whole_frame_changes`) or on the first
    frame;
 4. asks the integrator for those samples through the render template's
    partial render (``render_layers(samples=mask, moved=boxes)``: the method
@@ -43,11 +43,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from integrators.change_mask import (Boxes, ShadowVolumes, TriangleGroups, change_mask,
-                                     frame_invariants, mesh_arrays, shape_boxes,
-                                     whole_frame_changes)
-from integrators.scene_params import SceneParams
-from integrators.template import compose_layers, merge_capture
+from integrators.core.shadow_volumes import (Boxes, ShadowVolumes, TriangleGroups, mesh_arrays,
+                                             shape_boxes)
+from integrators.partial.change_mask import change_mask, frame_invariants, whole_frame_changes
+from integrators.core.scene_params import SceneParams
+from integrators.core.film import compose_layers
+from integrators.partial.samples import merge_capture
 
 from .motion import ShapeAnimator
 
@@ -89,10 +90,10 @@ class FrameState:
 
 def merge_frame(previous: FrameState, result):
     """``(cap, L_scat)`` of a partial render ``result`` (a
-    :class:`~integrators.template.RenderResult`) completed with the previous
+    :class:`~integrators.template.base.RenderResult`) completed with the previous
     frame's values on the samples it did not compute: a subset capture's
     samples (``capture.sample``) are scattered into the previous capture
-    (:func:`~integrators.template.merge_capture`); a full capture is this
+    (:func:`~integrators.partial.samples.merge_capture`); a full capture is this
     frame's and takes the previous L_scat outside ``result.samples``."""
     part, values = result.capture, result.L_scat
     if result.samples is None:
@@ -137,7 +138,7 @@ class Sequence:
         self._state: FrameState | None = None
 
     def moving_boxes(self) -> list:
-        """Boxes per moving shape (:class:`integrators.change_mask.Boxes`)."""
+        """Boxes per moving shape (:class:`integrators.core.shadow_volumes.Boxes`)."""
         return [shape_boxes(s, self.volume_boxes, self.groups.get(s.id()))
                 for s in self.animator.moving_shapes]
 

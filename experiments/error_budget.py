@@ -4,7 +4,7 @@
 [--seeds N] [--size WxH] [--methods ...] [--quick]``.
 
 1. Fit (:func:`fit_constants`): the exponents and time model of
-   :data:`integrators.quality_auto.FIT` from the suite's frontier runs
+   :data:`integrators.core.quality_auto.FIT` from the suite's frontier runs
    (pixel centres; ``--fit``, default quick640 and quick160).  ``--fit-only``
    prints them (the committed constants are these, rounded).
 2. Hold out: generated scenes (:func:`experiments.random_scenes.random_scene`
@@ -130,7 +130,7 @@ def fit_tree(rows) -> dict:
 
 
 def fit_constants(rows) -> dict:
-    """:data:`integrators.quality_auto.FIT` from frontier run rows."""
+    """:data:`integrators.core.quality_auto.FIT` from frontier run rows."""
     march = groups(rows, "raymarch", lambda p: p.get("visibility") == "exact")
     filt = groups(rows, "fourier_filter",
                   lambda p: "light_rays" not in p and p.get("weights") == "reference_ray")
@@ -162,7 +162,7 @@ def timed(scene, integrator, repeats):
 
 def explicit(method, setting, diagonal) -> dict:
     """Integrator properties of a sweep setting (the tree's density -> light rays)."""
-    from integrators.quality_auto import light_rays_of
+    from integrators.core.quality_auto import light_rays_of
 
     s = dict(setting)
     if "density" in s:
@@ -227,7 +227,7 @@ def probe_accuracy(name, method, scene, ref, images, refs):
     (``refs``: steps -> full exact-marcher image; ``images``: settings key
     -> full image of that setting)."""
     from episcatter import frontier as fr
-    from integrators import quality_auto as qa
+    from integrators.core import quality_auto as qa
 
     h, w = ref.shape[:2]
     rows = []
@@ -247,7 +247,7 @@ def probe_accuracy(name, method, scene, ref, images, refs):
 def probe_reference_times(name, scene) -> list[dict]:
     """Time of the probe's reference (the exact marcher on the subset, the
     probe's dominant cost) per :data:`PROBE_VARIANTS`, after a warm-up."""
-    from integrators import quality_auto as qa
+    from integrators.core import quality_auto as qa
 
     rows = []
     for pixels, steps in PROBE_VARIANTS:
@@ -265,7 +265,7 @@ def run_scene(name, scene, ref, methods, repeats, log):
 
     from episcatter import frontier as fr
     from episcatter.reference import render_rgb
-    from integrators import quality_auto as qa
+    from integrators.core import quality_auto as qa
 
     h, w = ref.shape[:2]
     diag = math.hypot(w, h)

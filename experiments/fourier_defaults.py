@@ -130,7 +130,7 @@ def accuracy(s: dict, out, progress: bool) -> list[dict]:
 
 
 def thickness(s: dict, progress: bool) -> list[dict]:
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
 
     path = c.scene_file("sun_room")
     size = SceneParams.from_scene(c.load(path, c.resolution(s["width"], s["height"]))

@@ -31,10 +31,10 @@ recorded.  Per setting:
 Table 1 part: ``regions`` = 1...4 at 1024 x 1024, M = 32 (same stage split
 and error).  The paper's second knob, bases per thread, is fixed in this
 implementation (16 bases per prefilter lane for every M,
-:func:`integrators.fourier_basis._group_size`); on a CPU the rows already
+:func:`integrators.fourier.prefilter._group_size`); on a CPU the rows already
 give far more parallel lanes than cores, so regions can only add the
 (R + 1)-lookup evaluation cost.  The kernel alone is also timed with
-:func:`integrators.fourier_basis.bench_filter` (random rows, 1024 x 1024,
+:func:`integrators.fourier.prefilter.bench_filter` (random rows, 1024 x 1024,
 1920*1080 queries).
 
 Timing: every setting is built once, rendered once to warm up (reported as
@@ -237,9 +237,9 @@ def row_of(label, props, t, log, ref, info, s, load_before, load_after) -> dict:
 
 
 def kernel_regions(s: dict, repeats: int) -> list[dict]:
-    """:func:`integrators.fourier_basis.bench_filter` (the prefilter and
+    """:func:`integrators.fourier.prefilter.bench_filter` (the prefilter and
     evaluation kernels alone, random rows) for each number of regions."""
-    from integrators.fourier_basis import bench_filter
+    from integrators.fourier.prefilter import bench_filter
 
     k = s["kernel"]
     out = []

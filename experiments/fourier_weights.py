@@ -71,7 +71,7 @@ def settings_for(quick: bool) -> dict:
 
 def scene_size(path: str, defines: dict) -> float:
     """The medium box diagonal [m] (what τ = σt · size is measured with)."""
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
 
     return SceneParams.from_scene(c.load(path, defines)).scene_extent
 

@@ -58,8 +58,8 @@ def write_scene(folder: Path, yaw: float) -> Path:
 
 def axis_angle(scene) -> float:
     """Smallest angle [deg] between a view ray and the camera-light axis."""
-    from integrators.epipolar_setup import epipolar_frame_of
-    from integrators.scene_params import SceneParams
+    from integrators.epipolar.frame import epipolar_frame_of
+    from integrators.core.scene_params import SceneParams
     from rectify.projective import frustum_axis_angle
 
     return frustum_axis_angle(epipolar_frame_of(SceneParams.from_scene(scene)))

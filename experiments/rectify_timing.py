@@ -101,7 +101,7 @@ def _register_probe():
         def sweep_queries(self, params, cap, queries):
             if not self.stop_after_blockers:
                 return super().sweep_queries(params, cap, queries)
-            from integrators.light_models import light_model
+            from integrators.epipolar.light_models import light_model
             side = self.light_side(params, cap, queries, light_model(params))
             self.blocker_stage(params, cap, queries, side)
             return dr.zeros(mi.Color3f, queries.count)

@@ -9,7 +9,7 @@ relMSE at the pixel centres, one JSON line per scene.
 
 ``... --against-bisected``: it, ``epipolar_tree`` at its defaults and
 ``raymarch visibility=exact steps=256`` against ``raymarch visibility=exact
-steps=1024 boundary_bisections=12`` (:func:`integrators.marching.march_bisected`),
+steps=1024 boundary_bisections=12`` (:func:`integrators.core.marching.march_bisected`),
 each also against the 2048-step reference
 (results/reference_convergence/beam1280.json: 1280 960 beam).
 

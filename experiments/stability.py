@@ -27,7 +27,7 @@ samples).  Cases:
   point lights at 5° far out and just above the face), the camera just
   under that face looking away from the light, σt = 0.3 ... 10: most light
   rays of a slice leave the box far behind the eye, the light-side factor
-  spans e^{±σt·80} (before ``epipolar_setup.row_reference`` bounded it,
+  spans e^{±σt·80} (before ``epipolar.light_rays.directional.row_reference`` bounded it,
   images were off by up to 1e9).
 
 Per case and method: NaN/Inf pixel count, relMSE (eps 1e-2), max |error|,
@@ -188,7 +188,7 @@ def scale_cases(values) -> list[dict]:
 
 #: camera just under the box's top face (y = 4), looking away from a light
 #: that grazes that face: most light rays of a slice leave the box far
-#: behind the eye (epipolar_setup.row_reference)
+#: behind the eye (epipolar.light_rays.directional.row_reference)
 UNDER_TOP = {"origin": [0.0, 3.9, 0.0], "target": [3.0, 3.5, 0.0], "up": [0.0, 1.0, 0.0]}
 
 

@@ -15,13 +15,14 @@ import importlib  # noqa: E402
 
 import mitsuba as mi  # noqa: E402
 
+
 DEFAULT_VARIANT = _llvm.DEFAULT_VARIANT
 
 #: the modules defining integrator base classes (subclasses of the active
 #: variant's ``mi.SamplingIntegrator``), reloaded first, in this order
 TEMPLATE_MODULES = (
-    "integrators.template",
-    "integrators.epipolar_template",
+    "integrators.template.base",
+    "integrators.template.epipolar",
 )
 #: one module per method; each ends with its mi.register_integrator call.
 METHOD_MODULES = (

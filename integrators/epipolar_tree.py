@@ -1,28 +1,29 @@
 """epipolar_tree: Baran et al. 2010, "A Hierarchical Volumetric Shadow
 Algorithm for Single Scattering" (epipolar rectification + incremental
 partial-sum tree).  The shared rectified maps live in
-:mod:`integrators.epipolar_setup`, the point/spot-light maths (§9) in
-:mod:`integrators.epipolar_local_light`, the sweep kernel in
-:mod:`integrators.partial_sum_tree`, the separation of the integrand in
-:mod:`integrators.integrand_svd`.
+:mod:`integrators.epipolar.queries`, the point/spot-light maths (§9) in
+:mod:`integrators.epipolar.kernel.local`, the sweep kernel in
+:mod:`integrators.tree.partial_sum_tree`, the separation of the integrand in
+:mod:`integrators.epipolar.kernel.svd`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 import drjit as dr
 import mitsuba as mi
 
-from .capture import capture_shadow_map
-from .epipolar_setup import (assemble_queries, blocker_modes, first_leaf_visibility,
-                             gather_queries, last_interval_correction,
-                             last_interval_visibility, rectified_depth, sweep_magnitude,
-                             unresolved_samples)
-from .light_models import light_model
-from .partial_sum_tree import integrate_slices
-from .row_subset import frame_choices, take_light_rays, take_rows
-from .epipolar_template import EpipolarIntegrator
-from .template import read_bool, read_choice, read_number
+from .core.capture import capture_shadow_map
+from .core.properties import read_bool, read_choice, read_number
+from .epipolar.blockers import blocker_modes
+from .epipolar.last_interval import (last_interval_correction, last_interval_visibility,
+                                     sweep_magnitude, unresolved_samples)
+from .epipolar.light_models import light_model
+from .epipolar.light_rays.directional import rectified_depth
+from .epipolar.queries import gather_queries
+from .epipolar.query_terms import assemble_queries, first_leaf_visibility
+from .partial.row_subset import frame_choices, take_light_rays, take_rows
+from .template.epipolar import EpipolarIntegrator
+from .tree.partial_sum_tree import integrate_slices
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,7 +39,7 @@ class LightSide:
 
     def of_rows(self, queries) -> "LightSide":
         """The light side of the rows of ``queries`` (a
-        :class:`~integrators.row_subset.RowSubset`; a whole frame: itself)."""
+        :class:`~integrators.partial.row_subset.RowSubset`; a whole frame: itself)."""
         return LightSide(take_light_rays(queries, self.rays), take_rows(queries, self.L),
                          self.colour, take_rows(queries, self.lit), take_rows(queries, self.D))
 
@@ -66,7 +67,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
        every query's β.  1/sin β, the phase function (any Mitsuba phase,
        exactly, per query: for a directional light θ = β), σs and the
        irradiance are per-query factors.
-       Point/spot lights (§9, :mod:`integrators.epipolar_local_light`): γ is
+       Point/spot lights (§9, :mod:`integrators.epipolar.kernel.local`): γ is
        the angle at the light, dt/r² = dγ/(L sin β) (a per-query factor);
        per light ray, Mitsuba's intensity (spot fall-off and projected
        texture, averaged over the ``prefilter`` sub-rays: §6 textured light)
@@ -77,7 +78,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
        cone in their slice), so K's light-ray factors are computed once per
        lattice cell.
     3. *Sweep* (§4-§5, Fig. 6): the Fenwick-tree kernel of
-       :mod:`integrators.partial_sum_tree`; slices without blockers take its
+       :mod:`integrators.tree.partial_sum_tree`; slices without blockers take its
        closed form.
     4. *Ring* (§6): samples within ``ring_degrees`` of the epipole (or the
        anti-epipole) are ray-marched with exact visibility (point/spot: those
@@ -85,7 +86,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
        peak); so are the samples whose two slices disagree
        (``remarch_disagreement``: a shaft edge or a narrow beam running
        along the slices); and so are the samples whose sums the separated
-       kernel does not resolve (:func:`~integrators.epipolar_setup.unresolved_samples`:
+       kernel does not resolve (:func:`~integrators.epipolar.last_interval.unresolved_samples`:
        the unshadowed sum below 1e-2 of its terms' magnitude, e.g. a thick
        medium seen away from a light whose light-side path shrinks along
        the slices; ``stats["unresolved"]`` counts them).
@@ -96,7 +97,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     and each view ray's kernel normalised (the paper's uniform grid loses
     10× accuracy in thick media and near the anti-epipole,
     :func:`separate_channel`); each light-ray interval holds the exact mean
-    of K over it, not a midpoint sample (:func:`~integrators.epipolar_setup.cell_average`).
+    of K over it, not a midpoint sample (:func:`~integrators.epipolar.query_terms.cell_average`).
 
     =========================  =============================================
     ``slices``                 number of epipolar slices; 0 (default):
@@ -124,7 +125,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                and where the light-side depth changes by
                                more than 1/4 mean free path per light ray
                                (directional: a grazing face,
-                               :func:`~integrators.epipolar_setup.light_side_step`);
+                               :func:`~integrators.epipolar.light_rays.directional.light_side_step`);
                                point/spot: the widest slice's, narrower
                                slices get fewer at the same angular spacing
     ``svd_rank``               terms N of the separated kernel per colour
@@ -145,7 +146,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                at the light-ray boundaries are not smooth,
                                interpolate them elsewhere (default true;
                                foliage rows are traced in full,
-                               :func:`~integrators.epipolar_setup._smooth_intervals`)
+                               :func:`~integrators.epipolar.blockers._smooth_intervals`)
     ``remarch_disagreement``   with ``slice_interpolation``: a camera
                                sample whose two slices' values differ by
                                more than this fraction of the larger (and
@@ -190,7 +191,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     ROW_SUBSETS = True
     #: point/spot lights: light-ray cells before each view ray's asymptote
     #: in which the sweep's separated kernel is replaced by the exact cell
-    #: means per query (:class:`~integrators.epipolar_local_light.LocalSeparation`)
+    #: means per query (:class:`~integrators.epipolar.kernel.local.LocalSeparation`)
     ASYMPTOTE_BAND = 2
 
     def read_method_properties(self, props):
@@ -213,13 +214,13 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     def sweep_queries(self, params, cap, queries):
         """L_scat of every query (§3-§7; point/spot lights: §9,
-        :mod:`integrators.epipolar_local_light`).
+        :mod:`integrators.epipolar.kernel.local`).
 
         The interval in which a view ray ends is not lit by its leaf's §7
         depth modes, whose sub-rays beyond the end point sample the ray's
         continuation behind the surface, but -- where those modes are mixed
         -- by exact shadow rays from the covered part of the query's own ray
-        (:func:`~integrators.epipolar_setup.last_interval_visibility`,
+        (:func:`~integrators.epipolar.last_interval.last_interval_visibility`,
         inside the ``unrectify`` stage); the render's
         ``stats["last_interval_traced"]``: how many of its
         ``stats["query_count"]`` queries traced them."""
@@ -249,7 +250,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         with self.stage("unrectify") as keep:
             # the last, partial light-ray interval of each query: ray-traced
             # where its leaf's depth modes are uncertain (§5 lerp, §7 modes;
-            # epipolar_setup.last_interval_visibility), the sweep's integral
+            # epipolar.last_interval.last_interval_visibility), the sweep's integral
             # corrected by the difference
             last = last_interval_visibility(params, cap, queries, rays, modes, D,
                                             self.prefilter)

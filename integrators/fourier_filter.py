@@ -1,51 +1,40 @@
 """fourier_filter: Klehm et al. 2014, "Filter-Based Real-Time Single
-Scattering using Rectified Shadow Maps" (JCGT 3(3)).
-
-The rectified shadow map is built on the epipolar rectification shared with
-``epipolar_tree`` (:mod:`integrators.epipolar_setup`: directional light;
-:mod:`integrators.epipolar_local_light`: point and spot lights, Baran §9) by
-:mod:`integrators.fourier_setup`; the Fourier-basis prefilter and the
-per-pixel evaluation are :mod:`integrators.fourier_basis`; the separated
-kernels of ``weights="exact"`` are ``epipolar_tree``'s
-(the light model's ``separated_kernel``,
-:func:`integrators.kernel_separation.separate_kernel`).  Klehm's
-projective rectification (§4.2, ``rectification="projective"``) takes its
-rows and texels from :mod:`rectify.projective` and its unequal texels'
-integrals (Eq. 12) from :mod:`integrators.fourier_setup`.
+Scattering using Rectified Shadow Maps" (JCGT 3(3)) -- the plugin, which
+strings together the stages of :mod:`integrators.fourier` on the epipolar
+rectification of :mod:`integrators.epipolar`.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, auto_splits, frustum_axis_angle,
+                                projective_columns, projective_rectification, projective_rows)
 
-from rectify.epipole import EpipolarFrame
-from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, ProjectiveRows,
-                                auto_splits, frustum_axis_angle, projective_columns,
-                                projective_rectification, projective_rows)
+from .core.capture import capture_shadow_map
+from .core.opaque import two_or_more
+from .core.properties import read_bool, read_choice, read_number
+from .epipolar.frame import choose_slices, epipolar_frame_of
+from .epipolar.light_models import light_model
+from .epipolar.query_terms import assemble_queries
+from .fourier.basis import check_M
+from .fourier.exact import exact_sums
+from .fourier.prefilter import region_length
+from .fourier.projective_rays import (ProjectiveLightRays, projective_light_rays,
+                                      projective_query_terms, projective_x_range,
+                                      texel_blocker_angles, texel_separated_kernel)
+from .fourier.rectified_map import (Coverage, DEPTH_RANGES, FilterSettings, REFERENCES,
+                                    class_sums, near_band, near_step_weight, prefilter_rows,
+                                    rectified_shadow_map, series_sum, series_unreliable,
+                                    series_visibility)
+from .fourier.references import interpolated_sum, reference_rays, restrict_rows, row_kernel
+from .fourier.rows import ProjectivePlan, auto_texels, far_depth, row_spacing, texel_size
+from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility,
+                           reference_kernel, row_shift, unshadowed_band)
+from .fourier.tail import tail_visibility
+from .partial.row_subset import frame_choices, take_light_rays, take_rows
+from .template.epipolar import EpipolarIntegrator
 
-from .capture import capture_shadow_map
-from .epipolar_setup import (LastInterval, LightRays, assemble_queries, auto_light_rays,
-                             choose_slices, epipolar_frame_of)
-from .light_models import light_model
-from .opaque import scalar_u32, two_or_more, vector
-from .fourier_basis import check_M, region_length
-from .fourier_exact import exact_sums
-from .fourier_tail import tail_visibility
-from .fourier_rows import rectified_size, row_spacing
-from .fourier_references import interpolated_sum, reference_rays, restrict_rows, row_kernel
-from .fourier_setup import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
-                            ProjectiveLightRays, near_band, near_step_weight, prefilter_rows,
-                            projective_light_rays, projective_query_terms,
-                            projective_x_range, query_beta_range, rectified_shadow_map,
-                            reference_angle, series_sum, series_unreliable,
-                            series_visibility, class_sums, texel_blocker_angles,
-                            texel_separated_kernel)
-from .epipolar_template import EpipolarIntegrator
-from .row_subset import frame_choices, take_light_rays, take_rows
-from .template import read_bool, read_choice, read_number
 
 WEIGHTS = ("average", "reference_ray", "exact")
 #: ``visibility``: the Fourier filter (Klehm) or the direct sum (fourier_exact)
@@ -70,152 +59,20 @@ PROJECTIVE_FLOOR = DEFAULT_MIN_ANGLE_DEG
 class FourierFilterIntegrator(EpipolarIntegrator):
     r"""Filter-based single scattering (``fourier_filter``).
 
-    Single scattering with volumetric shadows of a directional, point or
-    spot light (with or without a projected texture) in the homogeneous
-    medium around the camera, after Klehm et al. 2014:
-
-    1. *Rectified shadow map* (§2.2, §4.1): epipolar slices = rows, ``d``
-       light rays per slice = texels, each traced with Mitsuba from the
-       light (``blockers="traced"``) or read from a classic shadow map
-       (``"resampled"``: orthographic, perspective for a spot light of
-       cutoff ≤ 60°, else a cube).  The depth constant along a view ray is
-       its angle β to the light; a texel holds its blocker's angle β_b
-       (view ray β is shadowed there iff β > β_b: Eq. 5's step).  Every
-       camera sample is evaluated at its **own** β and depth (it is a query
-       of both neighbouring slices, weighted by its position between them,
-       or with ``slice_interpolation=false`` of its nearest slice; nothing
-       is interpolated back to pixels; samples whose two slices disagree
-       are ray-marched, ``remarch_disagreement``).
-       See :mod:`integrators.fourier_setup` for the depth mapping
-       (``depth_range``).  The rows and texels are either the epipolar
-       ones (Baran's sinh slices, ``d`` equal light rays per slice) or
-       Klehm's projective map (§4.2, below).
-    2. *Basis and prefilter* (§3.1 Eqs. 6-10, §3.3 Listings 1-3): the shadow
-       test is expanded in ``M`` Fourier coefficients; weighted running
-       prefix sums of the basis along every row (normalised, Appendix A).
-    3. *Per pixel* (Listing 4): ``M`` coefficients of the ray's depth, one
-       dot product per lookup, times the weight sum of the texels in front
-       of its end point: L_scat = σs f_p E · Δγ/sin β · Σ_γ L(γ) K(γ, β) V.
-
-    Directional light: L(γ) = e^{-σt h(α,γ)} the light-side transmittance
-    per light ray and K(γ, β) = e^{-σt γ tan(β/2)} the camera and light
-    transmittance kernel (DESIGN §1, :mod:`integrators.epipolar_setup`).
-
-    Point and spot lights (Baran §9, :mod:`integrators.epipolar_local_light`):
-    rows are the same slices, texels are light rays at angles γ *at the
-    light* on one lattice (a spot light's rows start at its cone; narrower
-    rows use fewer texels of a row of ``d``), and the blocker angle keeps
-    its meaning (view ray β is shadowed on light ray γ iff β > β_b).  The
-    per-view-ray factor is σs·Δγ/(L sin β), L = |p_l − o| the light's
-    distance from the eye (dt/r² = dγ/(L sin β): the 1/r² fall-off costs
-    nothing); per light ray L(α, γ) = Mitsuba's intensity
-    (spot fall-off, projected texture: coloured) times e^{-σt (L − r_in)};
-    the kernel K(γ, β) = e^{-σt (t + r − L)} f_p(β + γ) holds both
-    transmittances and the phase function, which depends on β + γ.
-
-    ``weights`` chooses how the weighted sum Σ L K V is obtained:
-
-    ``average`` (§3.1)
-        filter weights L(γ): the average visibility V̄ of Eq. 4/Listing 4
-        times the query's own unshadowed sum U(β) = Σ L K(γ, β).  For a
-        local light L carries the light's angular contribution (fall-off,
-        texture): §3.2's "angular dependency" weights.
-    ``reference_ray`` (§3.2, Eq. 11, Listing 2; default)
-        filter weights L(γ) K(γ, β_ref) of one reference ray per slice:
-        the bisectrix of the slice's (smallest, largest) transmittance
-        decay, or the min-max optimum (``reference``, see
-        :func:`~integrators.fourier_setup.reference_angle`); V̄ · U(β).
-        For a local light K(γ, β_ref) is the kernel's mean over each
-        texel's interval, the reference ray's phase function f_p(β_ref + γ)
-        included: the angular dependency of §3.2 of both the light and the
-        scattering angle.
-    ``exact`` (beyond the paper)
-        K = Σ_n A_n(γ) B_n(β) separated as in ``epipolar_tree`` (SVD,
-        ``svd_rank``/``svd_tolerance``); one filter per component with the
-        non-negative weights L (A_n + c_n) (c_n: a per-row shift, undone with
-        one more filter of weights L), combined with B_n(β) of the query:
-        Σ_γ L K V with the query's own kernel, no reference ray.  Linear in
-        the filters, so ``clamp`` applies to the combined average.
-
-    U(β) uses the same separated kernel (prefix sums of L A_n, no filter).
-    Rows with no blocker in view take U directly (closed form, no filter).
-
-    Where the series is no estimate (beyond the paper; ``exact_fallback``):
-    a query whose series texels within 2/M of its own depth (where the
-    truncated series blurs the step) weigh more than twice its filtered sum
-    -- fog right behind its blocker: in front of a surface seen from its
-    shadowed side, along a ray grazing an occluder -- takes the exact sum
-    (:func:`~integrators.fourier_setup.series_unreliable`,
-    :mod:`integrators.fourier_exact`); ``stats["exact_fallback"]``.
-
-    The end of each view ray (beyond the paper; ``trace_ends``): a sample
-    reads the blockers of its slice's plane, up to half a slice spacing
-    from its own ray, and the surface a ray ends on is the blocker of the
-    light rays around its end; the short run of texels behind the last
-    change of visibility before the end is traced on the sample's own ray
-    (:mod:`integrators.fourier_tail`; epipolar slices;
-    ``stats["tail_traced"]``).  The direct sum (``visibility``) takes U from
-    the query's own kernel too, no separated kernel.
-
-    ``rectification="projective"`` (Klehm §4.2, directional light):
-    the matrix of :func:`~rectify.projective.projective_rectification`
-    maps every slice to a row and every light ray to a texel.  Rows are
-    equally spaced in its NDC row, i.e. in tan(α − α_mid) (nearly equally
-    spaced on screen when the epipole is far off it), as many as keep
-    every pixel centre within half a pixel of a row
-    (:func:`~rectify.projective.projective_rows`); the camera samples are
-    queries of their nearest row, each at its own β and depth as above.
-    Texels are equally spaced in the matrix's column, i.e. in 1/x (x the
-    distance along the frustum's bisectrix; γ = x/cos φ on a row): the
-    depth-buffer non-linearity of §4.2, tamed by Klehm's splits (geometric
-    in x, each its own projective map, ``projective_splits``; texels per
-    split ∝ √length, :func:`~rectify.projective.projective_columns`),
-    fitted to the x range of the camera rays.  Texels are therefore
-    unequally wide: every weight holds the exact integral over its texel
-    (Eq. 12 with the map's own texel edges: ``reference_ray``
-    T(start)(1 − T(across)) along the reference ray, ``average`` the
-    texel width, ``exact`` the Gauss–Legendre integral of the separated
-    kernel), and the segment between the map's first edge and the camera
-    ray's origin is taken in closed form with the first texel's
-    visibility.  It needs more rows as the epipole nears the screen and
-    has no rasterisation to gain in a ray tracer, hence ``auto`` (below;
-    its accuracy and time against the epipolar slices: README, "projective
-    against epipolar rectification").  Blockers are traced (or read
-    from the shadow map) along the light ray through each texel centre.
-
-    ``visibility`` chooses how the weighted visibility V̄ is obtained:
-    ``filter`` (Klehm's Fourier filter, everything above), ``exact`` (the
-    direct sum Σ_γ L K(γ, β) V cover over the covered texels with each
-    query's own kernel, :mod:`integrators.fourier_exact`: no ringing, no
-    leak into shadowed fog, no weighting error; ``D`` gathers per query
-    instead of ``2 M`` plus the prefilter), or ``auto`` (default):
-    ``exact``, unless one of the filter's own properties (``coefficients``,
-    ``weights``, ``reference``, ``reference_rays``, ``regions``, ``clamp``,
-    ``fit_depth``, ``exact_bounds``, ``depth_range``) is set, then
-    ``filter`` -- so ``coefficients=32`` reproduces the paper; point and
-    spot lights take the filter under ``auto`` (the direct sum evaluates
-    their kernel per texel and query: many times the filter's cost).
-
-    ``reference_rays`` (filter, ``weights="reference_ray"``): Klehm's single
-    reference ray per row is right only while the medium is thin across the
-    row (its kernel e^{-σt γ tan(β/2)} then differs little between the
-    row's view rays); several reference rays per row, each query's
-    weights the mix of its two nearest
-    (:mod:`integrators.fourier_references`), keep the energy in thick
-    media.  0 (default): automatic per row; 1: the paper's.
-
-    Images smaller than 32 px on the long side get finer slices and more
-    light rays (:mod:`integrators.fourier_rows`).
+    Klehm et al. 2014's filter on the epipolar rectification shared with
+    ``epipolar_tree`` (or Klehm's projective one): the stages, in pipeline
+    order, and the method's maths are in :mod:`integrators.fourier`'s
+    docstring (DESIGN §3).
 
     =========================  =============================================
     ``visibility``             ``auto`` (default) | ``exact`` | ``filter``
-                               (above)
+                               (:mod:`integrators.fourier`)
     ``reference_rays``         reference rays per row of ``reference_ray``
                                (0: automatic, 1: Klehm's single ray)
     ``coefficients``           M, Fourier coefficients, sines and cosines
                                counted apart (even, default 32, §5)
     ``weights``                ``average`` | ``reference_ray`` (default) |
-                               ``exact`` (above)
+                               ``exact`` (:mod:`integrators.fourier`)
     ``reference``              reference ray of ``reference_ray``:
                                ``bisectrix`` (default, §3.2) | ``optimal``
     ``regions``                prefix-sum regions per row (§3.3, default 1)
@@ -227,7 +84,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                are exactly lit / shadowed (default true)
     ``depth_range``            ``slice`` (default): each slice's β range,
                                texels outside it summed exactly; ``full``:
-                               z = β/π (:mod:`integrators.fourier_setup`)
+                               z = β/π (:mod:`integrators.fourier.rectified_map`)
     ``exact_fallback``         the exact sum where the series is mostly its
                                blurred step (above; default true; false:
                                the series alone, as the paper)
@@ -247,7 +104,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                false: the nearest slice, as the paper:
                                a sample across a shaft's edge from its
                                slice takes the other side's light,
-                               :mod:`integrators.epipolar_template`)
+                               :mod:`integrators.template.epipolar`)
     ``remarch_disagreement``   with ``slice_interpolation``: a camera
                                sample whose two slices' answers differ by
                                more than this fraction of the larger is
@@ -341,7 +198,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     #: point/spot lights, ``weights`` ``average``/``reference_ray``: light-ray
     #: cells before each view ray's asymptote in which U takes the exact cell
     #: means instead of the separated kernel (``epipolar_tree``'s band,
-    #: :class:`~integrators.epipolar_local_light.LocalSeparation`).  The
+    #: :class:`~integrators.epipolar.kernel.local.LocalSeparation`).  The
     #: texels are TEXEL_FACTOR = 4 times narrower than the tree's light rays,
     #: so 8 cells span the tree's 2; 16 (random seed 233: mean ratio 0.983
     #: with 2 cells, 0.995 with 8, 0.998 with 16)
@@ -533,7 +390,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
 
     def rectified_map(self, queries, rays, beta_b):
         """The rectified shadow map of the blocker angles (§2.2, §4.1;
-        :func:`~integrators.fourier_setup.rectified_shadow_map`): a stage
+        :func:`~integrators.fourier.rectified_map.rectified_shadow_map`): a stage
         method, so an experiment observes the map by overriding it."""
         return rectified_shadow_map(queries, rays, beta_b, self.depth_range)
 
@@ -607,14 +464,14 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     def fallback(self, params, queries, rays, beta_b, cover, Ls, sigma_ts, tail, V,
                  unreliable, with_runs: bool = False) -> list:
         """Every channel's ``V`` (lists: per channel L and σt) with the exact
-        sum (:func:`~integrators.fourier_exact.exact_sums`, the traced end
+        sum (:func:`~integrators.fourier.exact.exact_sums`, the traced end
         runs included) at the queries ``unreliable`` in any channel, and
         with ``with_runs`` at those whose end run was traced
-        (:mod:`integrators.fourier_tail`; ``weights="exact"``, whose
+        (:mod:`integrators.fourier.tail`; ``weights="exact"``, whose
         component filters take no run correction); one pass for all
         channels of a grey medium (their kernel is one);
         ``stats["exact_fallback"]`` counts the queries (a single one is
-        summed twice: :func:`~integrators.opaque.two_or_more`)."""
+        summed twice: :func:`~integrators.core.opaque.two_or_more`)."""
         if tail is not None and with_runs:
             unreliable |= tail.runs()
         idx = dr.compress(unreliable)
@@ -646,7 +503,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
         evaluate the series visibility of every query (``evaluate``);
         ``band`` True: ``(V, drop)``, also the series' drop across the
-        near-step band (:func:`~integrators.fourier_setup.near_step_weight`);
+        near-step band (:func:`~integrators.fourier.rectified_map.near_step_weight`);
         False: ``(V, 0)``."""
         opt = self.filter_settings
         with self.stage("prefilter") as keep:
@@ -667,10 +524,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                              refs, beta_b, tail, kernels: dict):
         """(V̄, S, P, near): the weighted average visibility with the weights
         of each query's mix of its two nearest reference rays
-        (:mod:`integrators.fourier_references`), one filter per reference
+        (:mod:`integrators.fourier.references`), one filter per reference
         ray, and its shadowed, unshadowed and near-step weight sums;
         ``tail``: the traced end runs replace the map's visibility
-        (:meth:`~integrators.fourier_tail.TailVisibility.correction`);
+        (:meth:`~integrators.fourier.tail.TailVisibility.correction`);
         ``kernels``: reference ray k's kernel of this σt, kept for the other
         channels (:meth:`channel_sums`)."""
         def weighted_sum(k, rows):
@@ -712,7 +569,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         component through its own filter with shifted, non-negative weights
         L (A_n + c_n), minus c_n times the filter of weights L (class doc);
         S_L, P_L and near: the shadowed, unshadowed and near-step sums of
-        the weights L (what :func:`~integrators.fourier_setup.series_unreliable`
+        the weights L (what :func:`~integrators.fourier.rectified_map.series_unreliable`
         judges)."""
         V0, drop = self.filtered(queries, smap, cover, parts.L, clamp=False,
                                  band=self.exact_fallback)
@@ -734,172 +591,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 f"regions={self.regions}, clamp={self.clamp}, fit_depth={self.fit_depth}, "
                 f"depth_range={self.depth_range}, rectification={self.rectification}, "
                 f"slices={self.slices}, light_rays={self.light_rays}, output={self.output}]")
-
-
-# --------------------------------------------------------------------------
-# Helpers
-# --------------------------------------------------------------------------
-
-#: default texels per row: this many times epipolar_tree's light rays ...
-TEXEL_FACTOR = 4
-#: ... but not above this (unless epipolar_tree's own count is larger)
-MAX_AUTO_TEXELS = 1024
-
-
-@dataclass(eq=False)
-class ProjectivePlan:
-    """The projective rectification of one render (Klehm §4.2): the frame,
-    the matrix and the rows (:func:`~rectify.projective.projective_rows`)."""
-    frame: EpipolarFrame
-    rect: ProjectiveRectification
-    rows: ProjectiveRows
-
-
-def far_depth(params, cap) -> float:
-    """Largest depth along the optical axis of a camera ray's end point
-    (the frustum's far plane for the projective matrix)."""
-    cam = params.camera
-    o = vector(cam.origin)
-    f = vector(cam.forward / np.linalg.norm(cam.forward))
-    end = mi.Vector3f(cap.o) + cap.omega * cap.d - o
-    far = float(dr.max(dr.dot(end, f))[0]) if dr.width(cap.d) else 0.0
-    near = cam.near_clip if cam.near_clip > 0 else 1e-4 * params.scene_extent
-    return max(far, 10.0 * near)
-
-
-def texel_size(rays):
-    """Width of every texel (projective map), or 1 (equal widths per row,
-    which cancel in a weighted average)."""
-    return rays.widths() if isinstance(rays, ProjectiveLightRays) else 1.0
-
-
-def auto_texels(params, queries, cap) -> int:
-    """Default texels (light rays) per row.  ``epipolar_tree`` resolves each
-    light ray into ``prefilter`` = 4 sub-rays (Baran §7); a rectified shadow
-    map has one depth per texel, so it takes ``TEXEL_FACTOR`` times its
-    light rays (:func:`~integrators.epipolar_setup.auto_light_rays`), up to
-    ``MAX_AUTO_TEXELS`` (Klehm §5 uses 1024 for 1920×1080).  The length
-    over which the medium's mean free paths are counted: the widest row's
-    γ_max (directional), the longest camera path (point/spot, as
-    ``epipolar_tree``)."""
-    cam = params.camera
-    length = light_model(params).light_length(params, queries, cap)
-    width, height = rectified_size(cam.width, cam.height)
-    d = auto_light_rays(width, height, float(np.max(params.medium.sigma_t)), length)
-    return max(d, min(TEXEL_FACTOR * d, MAX_AUTO_TEXELS))
-
-
-@dataclass(eq=False)
-class RectifiedSums:
-    """Per query and colour channel (1 or 3): U = Σ_γ L K cover (no
-    blockers) and the effective average visibility V̄ of the blockers;
-    ``colour``: a point/spot light's colour when L is grey
-    (:func:`~integrators.epipolar_local_light.light_ray_factor`), else None."""
-    rays: LightRays
-    beta_b: mi.Float      # (n·d) blocker angle per light ray
-    U: list
-    V: list
-    colour: mi.Color3f | None = None
-
-    def integral(self) -> mi.Color3f:
-        """Σ_γ L K V cover = U · V̄ as a Color3f."""
-        values = [u * v for u, v in zip(self.U, self.V)]
-        return mi.Color3f(*(values * 3 if len(values) == 1 else values))
-
-
-def _channel_count(t: mi.TensorXf, axis: int) -> int:
-    return t.shape[axis] if len(t.shape) > axis else 1
-
-
-def channels(L: mi.TensorXf, A: mi.TensorXf | None, sigma_t) -> int:
-    """Colour channels the filters run for: 3 if the per-light-ray factor
-    L (n, d[, 3]) or the kernel A (n, d, C, N) is coloured (coloured σt, or
-    a textured spot light's colour per light ray), else 1; without a
-    separated kernel (A None, the direct sum) σt says whether it is coloured."""
-    kernel = A.shape[2] if A is not None else (1 if np.all(sigma_t == sigma_t[0]) else 3)
-    return max(_channel_count(L, 2), kernel)
-
-
-class KernelParts:
-    """One colour channel of the separated integrand: L (n·d) per light ray,
-    A_n (n·d) per light ray (directional: at its start; point/spot: its
-    interval's mean), B_n (Q) at every query's β."""
-
-    def __init__(self, L, A, B):
-        self.L, self.A, self.B = L, A, B
-
-    @staticmethod
-    def of(queries, rays, L, A, B, c: int) -> "KernelParts":
-        """Channel ``c`` of L and of A, B (a grey one serves every channel);
-        the rank's stride and the component's offset are kernel parameters,
-        so every component (of any rank) reads with the same kernels."""
-        lanes = dr.arange(mi.UInt32, queries.n * rays.d)
-        CL = _channel_count(L, 2)
-        L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
-        if A is None:             # the direct sum: no separated kernel
-            return KernelParts(L_c, [], [])
-        C, N = A.shape[2], A.shape[3]
-        c = min(c, C - 1)
-        stride = scalar_u32(C * N)
-        A_c, B_c = [], []
-        for i in range(N):
-            offset = scalar_u32(c * N + i)
-            b = dr.gather(mi.Float, B.array, queries.slot * stride + offset)
-            if dr.all(b == 0.0):        # unused component of this channel
-                continue
-            A_c.append(dr.gather(mi.Float, A.array, lanes * stride + offset))
-            B_c.append(b)
-        return KernelParts(L_c, A_c, B_c)
-
-    def unshadowed(self, cover: Coverage) -> mi.Float:
-        """U(β) = Σ_n B_n(β) Σ_γ L A_n cover: the query's sum without
-        blockers (the closed form of unblocked rows), accumulated one
-        evaluated component at a time: the same kernels for any rank."""
-        U = dr.zeros(mi.Float, dr.width(cover.frac))
-        for a, b in zip(self.A, self.B):
-            U += b * cover.sum(self.L * a)
-            dr.eval(U)
-        return U
-
-
-def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
-                    band_cells: int) -> mi.Color3f:
-    """What U (:meth:`KernelParts.unshadowed`, the banded separated kernel)
-    misses in each query's asymptote band: the light model's
-    ``band_correction`` (``epipolar_tree``'s, Baran §9's kernel near
-    β + γ = π) with every cell lit and the last one covered to the query's
-    depth (0: no band, or no separated kernel)."""
-    if A is None or not band_cells:
-        return dr.zeros(mi.Color3f, queries.count)
-    k0 = cover.texel - queries.row * scalar_u32(cover.d)
-    ones = dr.full(mi.Float, 1.0, queries.count)
-    last = LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
-    return model.band_correction(params, queries, rays, A, B, L, None, last, band_cells)
-
-
-def row_shift(a, smap) -> mi.Float:
-    """c (n,): the smallest shift making a + c ≥ 0 on the row's series texels."""
-    lo = dr.block_reduce(dr.ReduceOp.Min, dr.select(smap.series, a, dr.inf), smap.d)
-    return dr.select(dr.isfinite(lo), dr.maximum(-lo, 0.0), 0.0)
-
-
-def reference_kernel(params, queries, rays, sigma_t: float, how: str) -> mi.Float:
-    """K(γ, β_ref) per light ray (n·d): the weights of the slice's reference
-    ray (§3.2, Eq. 11; the light side included), β_ref by
-    :func:`~integrators.fourier_setup.reference_angle`; the kernel itself is
-    :func:`~integrators.fourier_references.row_kernel`."""
-    lo, hi = query_beta_range(queries)
-    return row_kernel(params, queries, rays, sigma_t, reference_angle(lo, hi, how))
-
-
-def near_visibility(queries, rays, beta_b) -> mi.Float:
-    """V of the first light ray at each query's β: the visibility the
-    rectified sum gives the view ray in front of the near plane
-    (:func:`~integrators.epipolar_setup.directional_query_terms`,
-    :func:`~integrators.epipolar_local_light.local_query_terms`; a spot
-    light's first light ray is the first in its cone, as in epipolar_tree)."""
-    first = dr.gather(mi.Float, beta_b, queries.row * scalar_u32(rays.d))
-    return dr.select(queries.beta <= first, 1.0, 0.0)
 
 
 mi.register_integrator("fourier_filter", lambda props: FourierFilterIntegrator(props))

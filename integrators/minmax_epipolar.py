@@ -6,15 +6,15 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-
 from rectify import ring_mask
 
-from .capture import capture_shadow_map
-from .epipolar_setup import RING_BISECTIONS
+from .core.capture import capture_shadow_map
+from .core.opaque import two_or_more
+from .core.properties import read_bool, read_choice, read_number
+from .epipolar.ring import RING_BISECTIONS
 from .minmax.integrate import integrate_samples
 from .minmax.light_rays import MAX_ENTRY_EXPONENT, light_top, slice_light_rays, texel_count
 from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
@@ -27,11 +27,10 @@ from .minmax.slice_subset import (SliceState, computed_pixels, dirty_slices, mer
                                   merged_rows, merged_samples)
 from .minmax.slices_and_samples import sample_layout, trace_layout
 from .minmax.unscattered import unshadowed_inscattering
-from .minmax.unwarp import (DEPTH_SIGMA, disagreeing_pixels, fixup, frame_peak,
-                            march_every_pixel, unwarp_taps)
+from .minmax.unwarp import (DEPTH_SIGMA, disagreeing_pixels, fixup, frame_peak, march_every_pixel,
+                            unwarp_taps)
 from .minmax.validate import check_scene
-from .opaque import two_or_more
-from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
+from .template.base import EpiscatterIntegrator
 
 
 #: samples on screen per pixel from which the defaults march every pixel
@@ -99,8 +98,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
        than ``remarch_disagreement`` -- a shadow edge or a thin beam runs
        between them, along the slices, and no blend estimates the pixel --
        with the epipolar methods' test and exact marcher
-       (:func:`~integrators.epipolar_setup.disagreeing_samples`,
-       :func:`~integrators.epipolar_setup.brute_force`).
+       (:func:`~integrators.epipolar.ring.disagreeing_samples`,
+       :func:`~integrators.epipolar.ring.brute_force`).
 
     ==========================  ================================================
     ``profile``                 ``none`` (default), ``high_quality``,

@@ -28,7 +28,7 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
                            ``auto`` (default:
                            equiangular for point/spot, uniform otherwise)
 ``march``                  ``full`` (default) or ``hybrid`` (Wyman & Ramsey
-                           2008, :mod:`integrators.hybrid_march`: exact
+                           2008, :mod:`integrators.core.hybrid_march`: exact
                            visibility traced only inside the occluders'
                            bounded shadow volumes; needs ``visibility=exact``)
 ``volume_boxes``           boxes per occluder mesh bounding its shadow
@@ -36,7 +36,7 @@ Properties (besides the template's ``output``, ``samples_per_pixel``):
 ``boundary_bisections``    0 (default: the light term at one point per
                            segment) or the bisections that locate each
                            segment's shadow and cone edges
-                           (:func:`~integrators.marching.march_bisected`;
+                           (:func:`~integrators.core.marching.march_bisected`;
                            needs ``visibility=exact``, ``march=full``, no
                            ``jitter``): a thin shaft's lit length is then
                            exact, not a whole number of segments
@@ -46,10 +46,11 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from .capture import capture_shadow_map
-from .hybrid_march import shadow_range
-from .marching import auto_spacing, march, march_bisected
-from .template import EpiscatterIntegrator, read_bool, read_choice, read_number
+from .core.capture import capture_shadow_map
+from .core.hybrid_march import shadow_range
+from .core.marching import auto_spacing, march, march_bisected
+from .core.properties import read_bool, read_choice, read_number
+from .template.base import EpiscatterIntegrator
 
 
 class RaymarchIntegrator(EpiscatterIntegrator):

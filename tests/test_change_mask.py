@@ -4,11 +4,12 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.change_mask import (Boxes, ShadowVolumes, change_mask_reference, clip_segments,
-                                     frame_invariants, in_shadow_volume_reference,
-                                     shadow_volume_planes, triangle_cluster_boxes,
-                                     whole_frame_changes)
-from integrators.scene_params import LightParams, SceneParams
+from integrators.core.shadow_volumes import (Boxes, ShadowVolumes, clip_segments,
+                                             in_shadow_volume_reference, shadow_volume_planes,
+                                             triangle_cluster_boxes)
+from integrators.partial.change_mask import (change_mask_reference, frame_invariants,
+                                             whole_frame_changes)
+from integrators.core.scene_params import LightParams, SceneParams
 from tests.conftest import scene_dict
 
 LIGHTS = {
@@ -159,8 +160,9 @@ def test_volume_bounds_hold_the_volumes_and_the_cull_changes_nothing(light):
     meet the bounds gives the mask of clipping all of them."""
     from dataclasses import replace
 
-    from integrators.capture import capture_camera
-    from integrators.change_mask import change_mask, in_shadow_volume_reference, volume_bounds
+    from integrators.core.capture import capture_camera
+    from integrators.partial.change_mask import change_mask
+    from integrators.core.shadow_volumes import in_shadow_volume_reference, volume_bounds
     params = SceneParams.from_scene(mi.load_dict(scene_dict(light=light, res=(32, 24))))
     boxes = Boxes(np.array([[-0.6, 0.1, -0.3], [0.5, -0.4, 0.6]]),
                   np.array([[-0.3, 0.4, 0.1], [0.8, -0.2, 0.9]]))

@@ -1,4 +1,4 @@
-"""Rectified maps of integrators.epipolar_setup against per-sample NumPy oracles."""
+"""Rectified maps of integrators.epipolar.queries against per-sample NumPy oracles."""
 import math
 
 import drjit as dr
@@ -6,11 +6,18 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators import epipolar_setup as es
-from integrators.capture import capture_camera
-from integrators.partial_sum_tree import BlockerModes
-from integrators.light_models import light_model
-from integrators.scene_params import SceneParams
+from integrators.epipolar import blockers as es_blockers
+from integrators.epipolar import frame as es_frame
+from integrators.epipolar import last_interval as es_last_interval
+from integrators.epipolar import light_factor as es_light_factor
+from integrators.epipolar.light_rays import directional as es_directional
+from integrators.epipolar.light_rays import layout as es_layout
+from integrators.epipolar import queries as es_queries
+from integrators.epipolar import query_terms as es_query_terms
+from integrators.core.capture import capture_camera
+from integrators.epipolar.blockers import BlockerModes
+from integrators.epipolar.light_models import light_model
+from integrators.core.scene_params import SceneParams
 from rectify import direction_to_alpha_beta_reference, pixel_to_slice_reference
 from tests.conftest import scene_dict
 
@@ -23,9 +30,9 @@ def setup(light=None, ring_deg=2.0, slices=0, **kw):
     scene = mi.load_dict(scene_dict(res=RES, **({"light": light} if light else {}), **kw))
     params = SceneParams.from_scene(scene)
     cap = capture_camera(params, surface=False)
-    frame = es.epipolar_frame_of(params)
-    sl = es.choose_slices(frame, slices)
-    return params, cap, frame, sl, es.assign_queries(params, frame, sl, cap, ring_deg)
+    frame = es_frame.epipolar_frame_of(params)
+    sl = es_frame.choose_slices(frame, slices)
+    return params, cap, frame, sl, es_queries.assign_queries(params, frame, sl, cap, ring_deg)
 
 
 def on_screen_light():
@@ -74,8 +81,8 @@ def test_queries_against_per_sample_numpy(light):
         assert np.all(np.diff(qbeta[sel]) >= 0)
 
     # depth D = γ_end / Δγ, Δγ = (max γ_end of the row) / d
-    rays = es.light_ray_grid(params, q, 40)
-    D = np.array(es.rectified_depth(q, rays))
+    rays = es_directional.light_ray_grid(params, q, 40)
+    D = np.array(es_directional.rectified_depth(q, rays))
     gmax = np.zeros(q.n)
     np.maximum.at(gmax, row, np.array(q.gamma_end))
     np.testing.assert_allclose(D[row, col], np.array(q.gamma_end) / (gmax[row] / 40), rtol=1e-5)
@@ -91,12 +98,12 @@ def test_light_ray_layouts_are_frozen_and_share_one_protocol(light):
     ``points``, the projective map's path) equals the model's own layout."""
     import dataclasses
 
-    from integrators.kernel_separation import separate_kernel
+    from integrators.epipolar.kernel.separation import separate_kernel
 
     params, cap, frame, sl, q = setup(light)
     model = light_model(params)
     rays = model.light_rays(params, q, 16, cap)
-    assert isinstance(rays, es.LightRayLayout) and isinstance(rays, es.EqualLightRays)
+    assert isinstance(rays, es_layout.LightRayLayout) and isinstance(rays, es_layout.EqualLightRays)
     with pytest.raises(dataclasses.FrozenInstanceError):
         rays.d = 3
     s, g, _ = rays.lanes()
@@ -104,8 +111,8 @@ def test_light_ray_layouts_are_frozen_and_share_one_protocol(light):
     counts = rays.row_counts()
     assert (counts is None) == (light == "directional")
     if light == "directional":
-        bare = es.LightRays(rays.d, rays.gamma_max, rays.delta_gamma)
-        exits = es.with_box_exits(params, q, bare)
+        bare = es_directional.LightRays(rays.d, rays.gamma_max, rays.delta_gamma)
+        exits = es_directional.with_box_exits(params, q, bare)
         assert bare.h is None and np.array_equal(np.array(exits.h), np.array(rays.h))
         own = separate_kernel(model.separation, params, q, rays, 0, 1e-3)
         given = separate_kernel(model.separation, params, q, rays, 0, 1e-3,
@@ -149,8 +156,8 @@ def assert_blocker_map(beta_b, expected):
 @pytest.mark.parametrize("light", [None, "on_screen"])
 def test_traced_blocker_map_against_ray_oracle(light):
     params, cap, frame, sl, q = setup(on_screen_light() if light else None)
-    rays = es.light_ray_grid(params, q, 24)
-    beta_b = np.array(es.trace_blocker_angles(params, q, rays, k=1)).reshape(q.n, 24)
+    rays = es_directional.light_ray_grid(params, q, 24)
+    beta_b = np.array(es_blockers.trace_blocker_angles(params, q, rays, k=1)).reshape(q.n, 24)
     alpha = np.array(q.alpha, np.float64)
     dg = np.array(rays.delta_gamma, np.float64)
     o, w = params.camera.origin, frame.axis
@@ -173,20 +180,20 @@ def test_adaptive_blocker_angles_match_traced_sub_rays(light):
     its interpolated angles are exact."""
     params, cap, frame, sl, q = setup(on_screen_light() if light else None)
     k, d = 4, 48
-    rays = es.light_ray_grid(params, q, d)
-    s, gamma = es.adaptive_sub_ray_gamma(rays, k)      # every sub-ray traced there
-    full = es._blocker_angle(params, q, s, gamma)
-    fast = es.trace_blocker_angles(params, q, rays, k=k, adaptive=True)
-    same = np.array(es.searchsorted_rows(q, s, full)) == np.array(es.searchsorted_rows(q, s, fast))
+    rays = es_directional.light_ray_grid(params, q, d)
+    s, gamma = es_blockers.adaptive_sub_ray_gamma(rays, k)      # every sub-ray traced there
+    full = es_blockers._blocker_angle(params, q, s, gamma)
+    fast = es_blockers.trace_blocker_angles(params, q, rays, k=k, adaptive=True)
+    same = np.array(es_queries.searchsorted_rows(q, s, full)) == np.array(es_queries.searchsorted_rows(q, s, fast))
     assert same.mean() > 0.995, same.mean()
     a, b = np.array(full), np.array(fast)
     assert np.all(np.isfinite(b)) and np.all((b >= 0) & (b <= np.pi))
     both = (a < np.pi) & (b < np.pi)
     assert np.quantile(np.abs(a - b)[both], 0.95) < 1e-4
     # the index bounds of the interpolated sub-rays only shorten the search
-    bounded = es.trace_sub_ray_blockers(params, q, rays, k=k, adaptive=True)
+    bounded = es_blockers.trace_sub_ray_blockers(params, q, rays, k=k, adaptive=True)
     assert bounded.lo is not None
-    with_bounds, without = (es.blocker_modes(q, rays, x, k) for x in (bounded, bounded.angle))
+    with_bounds, without = (es_blockers.blocker_modes(q, rays, x, k) for x in (bounded, bounded.angle))
     np.testing.assert_array_equal(np.array(with_bounds.beta), np.array(without.beta))
     np.testing.assert_array_equal(np.array(with_bounds.weight), np.array(without.weight))
 
@@ -195,9 +202,9 @@ def test_blocker_modes_are_row_searchsorted():
     """Blocker β -> view-ray index = number of the row's queries with β_q ≤ β_b."""
     params, cap, frame, sl, q = setup(on_screen_light())
     k = 3
-    rays = es.light_ray_grid(params, q, 16)
-    beta_b = es.trace_blocker_angles(params, q, rays, k=k)
-    modes = es.blocker_modes(q, rays, beta_b, k)
+    rays = es_directional.light_ray_grid(params, q, 16)
+    beta_b = es_blockers.trace_blocker_angles(params, q, rays, k=k)
+    modes = es_blockers.blocker_modes(q, rays, beta_b, k)
     bb = np.array(beta_b).reshape(q.n, 16, k)
     row, qbeta = np.array(q.row), np.array(q.beta)
     idx = np.empty_like(bb)
@@ -216,15 +223,15 @@ def test_blocker_modes_are_row_searchsorted():
 
 def test_merge_modes():
     index = mi.UInt32([5, 5, 7, 5, 9, 9, 9, 9])          # two light rays, k = 4
-    b, w = es.merge_modes(index, 4)
+    b, w = es_blockers.merge_modes(index, 4)
     np.testing.assert_allclose(np.array(w), [0.75, 0, 0.25, 0, 1, 0, 0, 0])
     np.testing.assert_allclose(np.array(b)[[0, 2, 4]], [5, 7, 9])
 
 
 def test_light_side_factor_against_slab_oracle():
     params, cap, frame, sl, q = setup(sigma_t={"type": "rgb", "value": [0.1, 0.3, 0.9]})
-    rays = es.light_ray_grid(params, q, 8)
-    L = np.array(es.light_side_factor(params, q, rays))
+    rays = es_directional.light_ray_grid(params, q, 8)
+    L = np.array(es_light_factor.light_side_factor(params, q, rays))
     assert L.shape == (q.n, 8, 3)
     alpha, dg = np.array(q.alpha, np.float64), np.array(rays.delta_gamma, np.float64)
     h_ref = np.array(rays.h_ref, np.float64)
@@ -242,18 +249,18 @@ def test_light_side_factor_against_slab_oracle():
 
 def test_grey_sigma_t_gives_one_channel():
     params, cap, frame, sl, q = setup()
-    rays = es.light_ray_grid(params, q, 8)
-    assert tuple(es.light_side_factor(params, q, rays).shape) == (q.n, 8)
+    rays = es_directional.light_ray_grid(params, q, 8)
+    assert tuple(es_light_factor.light_side_factor(params, q, rays).shape) == (q.n, 8)
 
 
 def test_first_leaf_visibility():
     modes = BlockerModes(mi.TensorXf(np.array([[[0, 3], [0, 0]], [[2, 9], [0, 0]]], np.float32)),
                          mi.TensorXf(np.array([[[0.5, 0.5], [1, 0]], [[1, 0], [1, 0]]],
                                               np.float32)))
-    q = es.EpipolarQueries(None, None, 2, 4, None, None, None, None,
+    q = es_queries.EpipolarQueries(None, None, 2, 4, None, None, None, None,
                            mi.UInt32([0, 0, 1, 1]), mi.UInt32([0, 3, 1, 2]),
                            None, None, None, None, 4)
-    np.testing.assert_allclose(np.array(es.first_leaf_visibility(q, modes)), [0.5, 0, 1, 0])
+    np.testing.assert_allclose(np.array(es_query_terms.first_leaf_visibility(q, modes)), [0.5, 0, 1, 0])
 
 
 def test_ring_and_zero_depth_samples_are_no_queries():
@@ -264,7 +271,7 @@ def test_ring_and_zero_depth_samples_are_no_queries():
 
 
 # --------------------------------------------------------------------------
-# Point and spot lights (Baran §9; integrators.epipolar_local_light)
+# Point and spot lights (Baran §9; integrators.epipolar.kernel.local)
 # --------------------------------------------------------------------------
 
 from types import SimpleNamespace  # noqa: E402
@@ -272,7 +279,10 @@ from types import SimpleNamespace  # noqa: E402
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from integrators import epipolar_local_light as ll  # noqa: E402
+from integrators.epipolar.kernel import local as ll_kernel_local
+from integrators.epipolar.light_rays import local as ll_light_rays_local
+from integrators.epipolar import local_blockers as ll_local_blockers
+from integrators.epipolar import local_light_factor as ll_local_light_factor
 from rectify import make_camera, point_frame, world_to_light_coords_reference  # noqa: E402
 
 POINT_LIGHT = np.array([0.3, 2.0, 0.4])          # conftest LIGHTS["point"]
@@ -309,14 +319,14 @@ def test_local_light_rays_form_one_lattice():
     d = 32
     for light in ("point", "spot"):
         params, cap, frame, sl, q = setup(light)
-        rays = ll.local_light_ray_grid(params, q, d)
+        rays = ll_light_rays_local.local_light_ray_grid(params, q, d)
         delta = np.array(rays.delta_gamma)
         assert np.all(delta == delta[0])
         m, count, lo = np.array(rays.offset), np.array(rays.d_count), np.array(rays.gamma_lo)
         np.testing.assert_allclose(lo, m * delta[0], rtol=1e-6, atol=1e-7)
         assert np.all((count >= 1) & (count <= d))
         assert rays.lattice_size == m.max() + d
-        a, b, lit = (np.array(v) for v in ll.light_ray_range(params, q))
+        a, b, lit = (np.array(v) for v in ll_light_rays_local.light_ray_range(params, q))
         end = lo + count * delta[0]
         assert np.all(lo[lit] <= a[lit] + 1e-6) and np.all(end[lit] >= b[lit] - 1e-6)
         gmax = np.zeros(q.n)
@@ -326,7 +336,7 @@ def test_local_light_rays_form_one_lattice():
             np.testing.assert_allclose(b, gmax, rtol=1e-6)
         else:
             assert lit.any() and np.all(count[~lit] == 1)
-        D = np.array(es.rectified_depth(q, rays))
+        D = np.array(es_directional.rectified_depth(q, rays))
         row, col = np.array(q.row), np.array(q.col)
         np.testing.assert_allclose(D[row, col], (np.array(q.gamma_end) - lo[row]) / delta[0],
                                    rtol=1e-4, atol=1e-3)
@@ -341,13 +351,13 @@ def test_automatic_light_ray_spacing_follows_the_image_with_a_floor_in_the_cone(
     F = lambda *v: mi.Float(list(map(float, v)))
     B = lambda *v: mi.Bool(list(v))
     d = 800
-    narrow = ll.light_ray_spacing(F(0.10, 0.0), F(0.11, 0.9), B(True, False), d, True, F(1.0, 0.9))
-    assert narrow == pytest.approx(0.01 / (es.MIN_AUTO_LIGHT_RAYS - 1), rel=1e-5)
-    wide = ll.light_ray_spacing(F(0.1, 0.0), F(0.9, 0.9), B(True, False), d, True, F(1.0, 0.9))
+    narrow = ll_light_rays_local.light_ray_spacing(F(0.10, 0.0), F(0.11, 0.9), B(True, False), d, True, F(1.0, 0.9))
+    assert narrow == pytest.approx(0.01 / (es_directional.MIN_AUTO_LIGHT_RAYS - 1), rel=1e-5)
+    wide = ll_light_rays_local.light_ray_spacing(F(0.1, 0.0), F(0.9, 0.9), B(True, False), d, True, F(1.0, 0.9))
     assert wide == pytest.approx(1.0 / (d - 1), rel=1e-5)
-    explicit = ll.light_ray_spacing(F(0.1, 0.0), F(0.9, 0.9), B(True, False), d, False, F(1.0, 0.9))
+    explicit = ll_light_rays_local.light_ray_spacing(F(0.1, 0.0), F(0.9, 0.9), B(True, False), d, False, F(1.0, 0.9))
     assert explicit == pytest.approx(0.8 / (d - 1), rel=1e-5)
-    point = ll.light_ray_spacing(F(0.0, 0.0), F(1.0, 0.5), B(True, True), d, True, F(1.0, 0.5))
+    point = ll_light_rays_local.light_ray_spacing(F(0.0, 0.0), F(1.0, 0.5), B(True, True), d, True, F(1.0, 0.5))
     assert point == pytest.approx(1.0 / (d - 1), rel=1e-5)
 
 
@@ -361,15 +371,15 @@ def test_cone_interval_against_brute_force(axis, cutoff, alpha):
     frame = point_frame(cam, [0.3, 1.0, -2.0], kind="spot")
     a = np.asarray(axis) / np.linalg.norm(axis)
     params = SimpleNamespace(light=SimpleNamespace(kind="spot", spot_axis=a, cutoff_angle=cutoff))
-    lo, hi, lit = (np.array(v)[0] for v in ll.cone_interval(params, frame, mi.Float(alpha)))
+    lo, hi, lit = (np.array(v)[0] for v in ll_light_rays_local.cone_interval(params, frame, mi.Float(alpha)))
     gamma = np.linspace(0.0, math.pi, 20001)
     w = light_ray_dirs(frame, np.full_like(gamma, alpha), gamma)
     inside = w @ a > math.cos(math.radians(cutoff))
     if not inside.any():
-        assert not lit or hi - lo < 3 * ll.CONE_MARGIN
+        assert not lit or hi - lo < 3 * ll_light_rays_local.CONE_MARGIN
         return
     assert lit
-    eps = 2 * ll.CONE_MARGIN + 2e-4
+    eps = 2 * ll_light_rays_local.CONE_MARGIN + 2e-4
     assert lo - eps <= gamma[inside].min() and gamma[inside].max() <= hi + eps
     assert gamma[inside].min() <= lo + eps and hi - eps <= gamma[inside].max()
 
@@ -395,8 +405,8 @@ def test_traced_local_blockers_against_ray_oracle():
     """β_b = the eye's angle of the first blocker seen from the point light
     along each light ray (centre, k = 1); π if nothing blocks it."""
     params, cap, frame, sl, q = setup("point")
-    rays = ll.local_light_ray_grid(params, q, 24)
-    beta_b = np.array(ll.trace_local_blocker_angles(params, q, rays, k=1)).reshape(q.n, 24)
+    rays = ll_light_rays_local.local_light_ray_grid(params, q, 24)
+    beta_b = np.array(ll_local_blockers.trace_local_blocker_angles(params, q, rays, k=1)).reshape(q.n, 24)
     alpha = np.array(q.alpha, np.float64)
     lo, delta = np.array(rays.gamma_lo, np.float64), float(rays.delta_gamma[0])
     expected = np.full((q.n, 24), np.pi)
@@ -430,8 +440,8 @@ def test_light_ray_factor_against_mitsuba_intensity(light):
     light is inside the box: r_in = 0), with the colour factored out when the
     light is untextured; k = 1: the light ray's centre."""
     params, cap, frame, sl, q = setup(light)
-    rays = ll.local_light_ray_grid(params, q, 16)
-    L, colour, lit = ll.light_ray_factor(params, q, rays, k=1)
+    rays = ll_light_rays_local.local_light_ray_grid(params, q, 16)
+    L, colour, lit = ll_local_light_factor.light_ray_factor(params, q, rays, k=1)
     L = np.array(L)
     assert (L.ndim == 3) == (light == "spot_textured")
     alpha = np.array(q.alpha, np.float64)
@@ -470,10 +480,10 @@ def test_local_kernel_against_triangle_geometry(beta, frac, sigma_t, g):
     x = math.tan(beta / 2) * math.tan(gamma / 2)
     scene = mi.load_dict(scene_dict(light="point", res=(4, 3), phase={"type": "hg", "g": g}))
     params = SceneParams.from_scene(scene)
-    got = float(ll.local_kernel(params, sigma_t, L, min(x + 1e-3, 1 - 1e-6),
+    got = float(ll_kernel_local.local_kernel(params, sigma_t, L, min(x + 1e-3, 1 - 1e-6),
                                 math.tan(beta / 2), gamma)[0])
     assert got == pytest.approx(expected, rel=2e-3, abs=1e-30)
-    K = ll.local_kernel_numpy(params, sigma_t, L, min(x + 1e-3, 1 - 1e-6))
+    K = ll_kernel_local.local_kernel_numpy(params, sigma_t, L, min(x + 1e-3, 1 - 1e-6))
     assert float(K(gamma, beta)) == pytest.approx(expected, rel=1e-4, abs=1e-300)
 
 
@@ -481,11 +491,11 @@ def test_attenuation_exponent_is_continued_c1():
     """E(x) = k x/(1 − x) up to x_max, then its tangent line (C¹)."""
     k, xm = 3.0, 0.8
     x = np.array([xm - 1e-7, xm, xm + 1e-7, 0.95, 2.0])
-    E, dE = ll.attenuation_exponent(x, xm, k)
+    E, dE = ll_kernel_local.attenuation_exponent(x, xm, k)
     assert E[0] == pytest.approx(k * x[0] / (1 - x[0]))
     assert E[2] - E[1] == pytest.approx(1e-7 * k / (1 - xm) ** 2, rel=1e-4)
     np.testing.assert_allclose(dE[2:], k / (1 - xm) ** 2)
-    Ed, dEd = ll.attenuation_exponent(mi.Float(x.astype(np.float32)), xm, k)
+    Ed, dEd = ll_kernel_local.attenuation_exponent(mi.Float(x.astype(np.float32)), xm, k)
     np.testing.assert_allclose(np.array(Ed), E, rtol=1e-5)
     np.testing.assert_allclose(np.array(dEd), dE, rtol=1e-5)
 
@@ -506,10 +516,10 @@ def test_cell_mean_against_quadrature(phase, beta, gamma, delta, sigma_t):
     n = 20000
     g = gamma + (np.arange(n) + 0.5) / n * delta
     ok = np.tan(beta / 2) * np.tan(g / 2) < 1
-    values = np.where(ok, np.array(ll.local_kernel(params, sigma_t, L, x_max, math.tan(beta / 2),
+    values = np.where(ok, np.array(ll_kernel_local.local_kernel(params, sigma_t, L, x_max, math.tan(beta / 2),
                                                    mi.Float(g.astype(np.float32)))), 0.0)
     expected = values.mean()
-    got = float(ll.local_kernel(params, sigma_t, L, x_max, math.tan(beta / 2), gamma, delta)[0])
+    got = float(ll_kernel_local.local_kernel(params, sigma_t, L, x_max, math.tan(beta / 2), gamma, delta)[0])
     assert got == pytest.approx(expected, rel=5e-3)
 
 
@@ -520,16 +530,16 @@ def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t)
     query's β, for every light ray its depth covers (relative L2 per query
     within a few times the SVD tolerance)."""
     params, cap, frame, sl, q = setup(light, phase=phase, sigma_t=sigma_t)
-    rays = ll.local_light_ray_grid(params, q, 24)
+    rays = ll_light_rays_local.local_light_ray_grid(params, q, 24)
     tol = 1e-4
     A, B = light_model(params).separated_kernel(params, q, rays, 0, tol)
     A, B = np.array(A)[:, :, 0], np.array(B)[:, :, 0]            # (n, d, N), (n, r, N)
-    x_max = ll.query_x_max(q)
+    x_max = ll_kernel_local.query_x_max(q)
     L = float(frame.light_distance)
     delta = float(rays.delta_gamma[0])
     lo, count = np.array(rays.gamma_lo), np.array(rays.d_count)
     row, col, beta = np.array(q.row), np.array(q.col), np.array(q.beta)
-    D = np.array(es.rectified_depth(q, rays))[row, col]
+    D = np.array(es_directional.rectified_depth(q, rays))[row, col]
     pick = np.arange(0, q.count, 17)
     errs = []
     for j in pick:
@@ -538,7 +548,7 @@ def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t)
         if cells.size == 0:
             continue
         approx = A[s, cells] @ B[s, c]
-        exact = np.array(ll.local_kernel(params, sigma_t, L, x_max, math.tan(beta[j] / 2),
+        exact = np.array(ll_kernel_local.local_kernel(params, sigma_t, L, x_max, math.tan(beta[j] / 2),
                                          mi.Float((lo[s] + cells * delta).astype(np.float32)),
                                          delta))
         errs.append(np.linalg.norm(approx - exact) / np.linalg.norm(exact))
@@ -548,29 +558,30 @@ def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t)
 
 @pytest.mark.parametrize("coloured", [False, True])
 def test_last_interval_correction_against_numpy(coloured):
-    """Sweep + :func:`es.last_interval_correction` = the direct sum of Eq. 3
+    """Sweep + :func:`es_last_interval.last_interval_correction` = the direct sum of Eq. 3
     with the visibility of each view ray's last leaf k0 = ⌊D⌋ replaced by
     the query's own V (here random 0/1), the coverage weights unchanged."""
-    from integrators.partial_sum_tree import integrate_slices, random_problem
+    from integrators.tree.partial_sum_tree import integrate_slices
+    from integrators.tree.partial_sum_reference import random_problem
     n, d, r, N = 3, 8, 6, 2
     D, S, A, B, L = random_problem(n, d, r, N, seed=3, modes=2)
     if coloured:
         A = np.stack([A, 0.5 * A, 2 * A], axis=2)              # (1, d, 3, N)
     rng = np.random.default_rng(1)
-    q = es.EpipolarQueries(None, None, n, r, None, None, None, mi.UInt32(np.arange(n * r)),
+    q = es_queries.EpipolarQueries(None, None, n, r, None, None, None, mi.UInt32(np.arange(n * r)),
                            mi.UInt32(np.repeat(np.arange(n), r)),
                            mi.UInt32(np.tile(np.arange(r), n)), None, None, None, None, n * r)
     modes = BlockerModes(mi.TensorXf(S.beta), mi.TensorXf(S.weight))
     Dc = np.clip(D, 0, d)
     k0 = np.minimum(np.floor(Dc), d - 1).astype(np.int64)
     f = (Dc - k0).astype(np.float32)
-    V_leaf = es.leaf_visibility(q, modes, mi.UInt32(k0.ravel()))
+    V_leaf = es_blockers.leaf_visibility(q, modes, mi.UInt32(k0.ravel()))
     V_new = rng.integers(0, 2, n * r).astype(np.float32)
-    last = es.LastInterval(mi.UInt32(k0.ravel()), mi.Float(f.ravel()), V_leaf,
+    last = es_last_interval.LastInterval(mi.UInt32(k0.ravel()), mi.Float(f.ravel()), V_leaf,
                            mi.Float(V_new), mi.UInt32(np.arange(n * r)))
     At, Bt, Lt = mi.TensorXf(A), mi.TensorXf(B), mi.TensorXf(L)
-    got = es.gather_queries(q, integrate_slices(mi.TensorXf(D), modes, At, Bt, L=Lt))
-    got = np.array(got + es.last_interval_correction(q, At, Bt, Lt, last)).T    # (Q, 3)
+    got = es_queries.gather_queries(q, integrate_slices(mi.TensorXf(D), modes, At, Bt, L=Lt))
+    got = np.array(got + es_last_interval.last_interval_correction(q, At, Bt, Lt, last)).T    # (Q, 3)
 
     # NumPy: V[s, β, γ] from the modes (applied from ⌈β_m⌉ on), last leaf replaced
     onset = np.ceil(S.beta)                                         # (n, d, M)
@@ -595,14 +606,14 @@ def test_light_side_factor_times_reference_is_bounded():
     scene = mi.load_dict(st.stress_scene(st.grazing_cases([sigma_t])[0]["light"],
                                          sigma_t=sigma_t, res=(32, 24), camera=st.UNDER_TOP))
     params = SceneParams.from_scene(scene)
-    frame = es.epipolar_frame_of(params)
-    queries = es.assign_queries(params, frame, es.choose_slices(frame),
+    frame = es_frame.epipolar_frame_of(params)
+    queries = es_queries.assign_queries(params, frame, es_frame.choose_slices(frame),
                                 capture_camera(params, surface=False), 2.0)
-    rays = es.light_ray_grid(params, queries)
-    L = np.array(es.light_side_factor(params, queries, rays)).reshape(queries.n, rays.d)
+    rays = es_directional.light_ray_grid(params, queries)
+    L = np.array(es_light_factor.light_side_factor(params, queries, rays)).reshape(queries.n, rays.d)
     h = np.array(rays.h).reshape(queries.n, rays.d)
     h_ref = np.array(rays.h_ref)
-    c = es.LIGHT_SIDE_RANGE
+    c = es_directional.LIGHT_SIDE_RANGE
     assert np.min(h[np.isfinite(h)]) * sigma_t < -c          # the case needs the bound
     assert np.all(h_ref >= -c / sigma_t - 1e-5)
     amplified = np.exp(-sigma_t * h_ref)[:, None] * L
@@ -623,10 +634,10 @@ def test_slice_interpolation_shares_each_sample_between_its_neighbours(light):
     scene = mi.load_dict(scene_dict(res=RES, **({"light": on_screen_light()} if light else {})))
     params = SceneParams.from_scene(scene)
     cap = capture_camera(params, surface=False)
-    frame = es.epipolar_frame_of(params)
-    sl = es.choose_slices(frame)
-    q = es.assign_queries(params, frame, sl, cap, 3.0, interpolate=True)
-    nearest = es.assign_queries(params, frame, sl, cap, 3.0)
+    frame = es_frame.epipolar_frame_of(params)
+    sl = es_frame.choose_slices(frame)
+    q = es_queries.assign_queries(params, frame, sl, cap, 3.0, interpolate=True)
+    nearest = es_queries.assign_queries(params, frame, sl, cap, 3.0)
     alpha_s, _ = direction_to_alpha_beta_reference(frame, np.array(cap.omega).T)
     sample, w = np.array(q.sample), np.array(q.weight)
     a_q = np.array(q.alpha)[np.array(q.row)]
@@ -677,12 +688,12 @@ def _magnitude_problem(coloured, seed=5, n=3, d=300, r=40, N=3):
     B = rng.normal(size=(1, r, N)).astype(np.float32)
     B[0, ::3, 0] *= 1e-3               # these queries' sums cancel: U ≪ M
     L = np.exp(np.linspace(0, 1, d)[None] * rng.uniform(-6, 6, (n, 1))).astype(np.float32)
-    q = es.EpipolarQueries(None, None, n, r, None, None, None, mi.UInt32(np.arange(n * r)),
+    q = es_queries.EpipolarQueries(None, None, n, r, None, None, None, mi.UInt32(np.arange(n * r)),
                            mi.UInt32(np.repeat(np.arange(n), r)),
                            mi.UInt32(np.tile(np.arange(r), n)), None, None, None, None, n * r)
     k0 = rng.integers(0, d, n * r)
     f = rng.uniform(0, 1, n * r).astype(np.float32)
-    last = es.LastInterval(mi.UInt32(k0), mi.Float(f), None, None, mi.UInt32([]))
+    last = es_last_interval.LastInterval(mi.UInt32(k0), mi.Float(f), None, None, mi.UInt32([]))
     # NumPy: Σ_{γ<k0} + f · leaf k0, per channel
     A4 = A if coloured else np.broadcast_to(A[:, :, None, :], (1, d, 3, N))
     v = A4 * L[:, :, None, None]                                       # (n, d, 3, N)
@@ -696,13 +707,13 @@ def _magnitude_problem(coloured, seed=5, n=3, d=300, r=40, N=3):
 
 @pytest.mark.parametrize("coloured", [False, True])
 def test_sweep_magnitude_against_numpy(coloured):
-    """:func:`es.sweep_magnitude`'s M and U are the exact sums Σ_{γ<D} of the
+    """:func:`es_last_interval.sweep_magnitude`'s M and U are the exact sums Σ_{γ<D} of the
     magnitudes and of Eq. 3's unshadowed separated terms, the last leaf
     counted with its covered fraction, per query and channel (rows whose L
     grows or decays by e^6 along γ; queries whose sums cancel)."""
     q, A, B, L, last, U_np, M_np = _magnitude_problem(coloured)
-    M, U = es.sweep_magnitude(q, A, B, L, last)
+    M, U = es_last_interval.sweep_magnitude(q, A, B, L, last)
     np.testing.assert_allclose(np.array(M).T, M_np, rtol=2e-5)
     np.testing.assert_allclose(np.array(U).T, U_np, rtol=2e-5, atol=2e-5 * M_np.max())
-    got_bad = np.array(M).T * es.UNRESOLVED_RATIO > np.abs(np.array(U).T)
+    got_bad = np.array(M).T * es_last_interval.UNRESOLVED_RATIO > np.abs(np.array(U).T)
     assert got_bad.any() and not got_bad.all()

@@ -7,8 +7,8 @@ import pytest
 import scenes
 from episcatter import metrics
 from episcatter.metrics import relmse_absolute as relmse
-from integrators.epipolar_setup import epipolar_frame_of
-from integrators.scene_params import SceneParams
+from integrators.epipolar.frame import epipolar_frame_of
+from integrators.core.scene_params import SceneParams
 from tests.conftest import scene_dict
 from tests.oracles import unshadowed_directional
 
@@ -361,7 +361,7 @@ def test_no_light_in_front_of_a_surface_in_shadow(light):
     end point -- here behind the plate, lit -- which put up to 19 % of the
     image's peak into pixels the reference renders black.  The last
     interval's visibility is now ray-traced where its modes are mixed
-    (epipolar_setup.last_interval_visibility)."""
+    (epipolar.last_interval.last_interval_visibility)."""
     scene = mi.load_dict(scene_dict(res=RES, light=light, floor=None, blocker=None,
                                     plate=PLATE, camera=FACING_THE_LIGHT))
     ref = reference(scene)

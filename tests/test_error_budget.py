@@ -9,7 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators import quality_auto as qa
+from integrators.core import quality_auto as qa
 
 METHODS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
 

@@ -84,7 +84,7 @@ def test_epipole_on_pixel_centre_is_on_pixel_centre():
     through that pixel's centre."""
     from rectify.describe import describe
 
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
     import mitsuba as mi
 
     res = (64, 48)

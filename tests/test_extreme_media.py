@@ -25,7 +25,7 @@ def test_grazing_light_behind_the_eye_stays_bounded(method, light, sigma_t):
     """A light grazing the box's top face, the camera just under it looking
     away: the light rays of a slice leave the box up to 80 units behind the
     eye, so e^{-σt h} spans hundreds of orders of magnitude.  Bounded light
-    side (epipolar_setup.row_reference, light_side_extinction): within
+    side (epipolar.light_rays.directional.row_reference, light_side_extinction): within
     half the reference's peak everywhere (the rest is the nearest-slice
     error at the face's horizon); before, up to 1e9 times the peak."""
     from experiments import stability as st

@@ -15,14 +15,15 @@ from hypothesis import given, settings, HealthCheck, strategies as st
 if mi.variant() is None:
     mi.set_variant("llvm_ad_rgb")
 
-from integrators import fourier_basis as fb  # noqa: E402
+from integrators.fourier import basis as fb_basis
+from integrators.fourier import prefilter as fb_prefilter
 
 F32 = np.float32
 
 
 def visibility(filtered, rows, j, z_r, **kw):
     """Fast filtered visibility for NumPy query arrays."""
-    return fb.filtered_visibility(
+    return fb_prefilter.filtered_visibility(
         filtered, mi.UInt32(np.asarray(rows, np.uint32)), mi.Float(np.asarray(j, F32)),
         mi.Float(np.asarray(z_r, F32)), **kw).numpy()
 
@@ -44,11 +45,11 @@ def blocky_rows(rng, n_rows, n, lo=0.2, hi=0.8, blockers=4):
 @pytest.mark.parametrize("M", [2, 32, 128])
 def test_basis_and_coefficients_match_numpy(M):
     z = np.concatenate([[0.0, 1.0, 0.5], np.random.default_rng(0).random(61)]).astype(F32)
-    B = np.stack([b.numpy() for b in fb.basis_coefficients(mi.Float(z), M)], axis=-1)
-    a = np.stack([x.numpy() for x in fb.reconstruction_weights(mi.Float(z), M)], axis=-1)
+    B = np.stack([b.numpy() for b in fb_basis.basis_coefficients(mi.Float(z), M)], axis=-1)
+    a = np.stack([x.numpy() for x in fb_basis.reconstruction_weights(mi.Float(z), M)], axis=-1)
     assert np.all(np.isfinite(B)) and np.all(np.isfinite(a))
-    np.testing.assert_allclose(B, fb.basis_coefficients_reference(z, M), atol=2e-5 * (1 + M / 32))
-    np.testing.assert_allclose(a, fb.reconstruction_weights_reference(z, M), atol=2e-6)
+    np.testing.assert_allclose(B, fb_basis.basis_coefficients_reference(z, M), atol=2e-5 * (1 + M / 32))
+    np.testing.assert_allclose(a, fb_basis.reconstruction_weights_reference(z, M), atol=2e-6)
 
 
 def test_series_is_the_truncated_square_wave_of_eq9():
@@ -56,21 +57,21 @@ def test_series_is_the_truncated_square_wave_of_eq9():
     rng = np.random.default_rng(1)
     z_r, z_i = rng.random(50), rng.random(50)
     M = 16
-    lhs = 0.5 + np.sum(fb.reconstruction_weights_reference(z_r, M)
-                       * fb.basis_coefficients_reference(z_i, M), axis=-1)
-    c = fb.harmonic_frequencies(M)
+    lhs = 0.5 + np.sum(fb_basis.reconstruction_weights_reference(z_r, M)
+                       * fb_basis.basis_coefficients_reference(z_i, M), axis=-1)
+    c = fb_basis.harmonic_frequencies(M)
     rhs = 0.5 - 2 * np.sum(np.sin(np.outer(z_r - z_i, c)) / c, axis=-1)
     np.testing.assert_allclose(lhs, rhs, atol=1e-12)
     # step value at the discontinuity and wrap-around point: 0.5
     for zr, zi in [(0.3, 0.3), (0.0, 1.0), (1.0, 0.0)]:
-        v = 0.5 + fb.reconstruction_weights_reference(zr, M) @ fb.basis_coefficients_reference(zi, M)
+        v = 0.5 + fb_basis.reconstruction_weights_reference(zr, M) @ fb_basis.basis_coefficients_reference(zi, M)
         assert v == pytest.approx(0.5, abs=1e-12)
 
 
 @pytest.mark.parametrize("M", [0, 3, -2, 2.5, True])
 def test_M_must_be_even(M):
     with pytest.raises(ValueError):
-        fb.check_M(M)
+        fb_basis.check_M(M)
 
 
 # ---------------------------------------------------------------------------
@@ -88,9 +89,9 @@ def test_prefix_filter_matches_reference(weights_kind, M, regions, fit_depth):
     z[0, :5] = 0.0
     w = {"none": None, "shared": rng.random(n).astype(F32),
          "rows": rng.random((n_rows, n)).astype(F32)}[weights_kind]
-    fast = fb.prefix_filter(mi.TensorXf(z), None if w is None else mi.TensorXf(w), M,
+    fast = fb_prefilter.prefix_filter(mi.TensorXf(z), None if w is None else mi.TensorXf(w), M,
                             regions, fit_depth)
-    ref = fb.prefix_filter_reference(z, w, M, regions, fit_depth)
+    ref = fb_prefilter.prefix_filter_reference(z, w, M, regions, fit_depth)
     assert fast.B_bar.shape == (n_rows, n, M) and fast.W.shape == (n_rows, n)
     np.testing.assert_allclose(fast.B_bar.numpy(), ref["B_bar"], atol=2e-5)
     np.testing.assert_allclose(fast.W.numpy(), ref["W"], rtol=1e-5, atol=1e-5)
@@ -101,8 +102,8 @@ def test_prefix_filter_matches_reference(weights_kind, M, regions, fit_depth):
 def test_prefix_filter_zero_weights_are_nan_free():
     z = np.array([[0.0, 0.5, 1.0, 0.2, 1.0, 0.0]], F32)
     w = np.array([[0.0, 0.0, 1.0, 0.0, 2.0, 0.0]], F32)
-    fast = fb.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), 8)
-    ref = fb.prefix_filter_reference(z, w, 8)
+    fast = fb_prefilter.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), 8)
+    ref = fb_prefilter.prefix_filter_reference(z, w, 8)
     assert np.all(np.isfinite(fast.B_bar.numpy()))
     np.testing.assert_allclose(fast.B_bar.numpy(), ref["B_bar"], atol=1e-5)
     v = visibility(fast, [0, 0, 0], [0.0, 1.5, 5.0], [0.3, 0.0, 1.0], exact_bounds=False)
@@ -111,9 +112,9 @@ def test_prefix_filter_zero_weights_are_nan_free():
 
 def test_prefix_filter_rejects_bad_shapes():
     with pytest.raises(ValueError):
-        fb.prefix_filter(mi.TensorXf(np.zeros((2, 4), F32)), mi.TensorXf(np.ones(3, F32)), 4)
+        fb_prefilter.prefix_filter(mi.TensorXf(np.zeros((2, 4), F32)), mi.TensorXf(np.ones(3, F32)), 4)
     with pytest.raises(ValueError):
-        fb.prefix_filter(mi.TensorXf(np.zeros((2, 10), F32)), None, 4, regions=6)
+        fb_prefilter.prefix_filter(mi.TensorXf(np.zeros((2, 10), F32)), None, 4, regions=6)
 
 
 # ---------------------------------------------------------------------------
@@ -127,7 +128,7 @@ def test_filtered_visibility_matches_reference(M, regions, fit_depth):
     z = rng.random((n_rows, n)).astype(F32)
     z[rng.random(z.shape) < 0.3] = 1.0
     w = rng.random((n_rows, n)).astype(F32)
-    filtered = fb.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), M, regions, fit_depth)
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), M, regions, fit_depth)
     rows = rng.integers(0, n_rows, q)
     j = (rng.random(q) * (n + 4) - 2).astype(F32)       # includes j < 0 and j > n−1
     j[:6] = [0, n - 1, 12, 13, 20.5, 40.75]
@@ -136,7 +137,7 @@ def test_filtered_visibility_matches_reference(M, regions, fit_depth):
     for clamp in (False, True):
         for exact_bounds in (False, True):
             fast = visibility(filtered, rows, j, z_r, clamp=clamp, exact_bounds=exact_bounds)
-            ref = [fb.filtered_visibility_reference(z[r], w[r], jj, zz, M, clamp, exact_bounds,
+            ref = [fb_prefilter.filtered_visibility_reference(z[r], w[r], jj, zz, M, clamp, exact_bounds,
                                                     regions, fit_depth)
                    for r, jj, zz in zip(rows, j, z_r)]
             np.testing.assert_allclose(fast, ref, atol=1e-5)
@@ -152,11 +153,11 @@ def test_filtered_visibility_matches_reference_property(n, regions, fit_depth, s
     z = rng.choice([0.0, 0.25, 0.5, 1.0, rng.random()], size=(2, n)).astype(F32)
     w = rng.choice([0.0, 0.5, 1.0], size=(2, n)).astype(F32)
     w[:, 0] = 1.0
-    filtered = fb.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), 8, regions, fit_depth)
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), 8, regions, fit_depth)
     rows, j = rng.integers(0, 2, 6), (rng.random(6) * n).astype(F32)
     z_r = rng.choice([0.0, 0.25, 0.5, 1.0, rng.random()], size=6).astype(F32)
     fast = visibility(filtered, rows, j, z_r, clamp=True)
-    ref = [fb.filtered_visibility_reference(z[r], w[r], jj, zz, 8, True, True, regions, fit_depth)
+    ref = [fb_prefilter.filtered_visibility_reference(z[r], w[r], jj, zz, 8, True, True, regions, fit_depth)
            for r, jj, zz in zip(rows, j, z_r)]
     np.testing.assert_allclose(fast, ref, atol=1e-5)
 
@@ -175,11 +176,11 @@ def convergence_errors(z, weights, Ms, exact_bounds, delta=0.05, q=600, seed=4):
     away = np.array([np.abs(z[r] - zz).min() > delta for r, zz in zip(rows, z_r)])
     rows, j, z_r = rows[away], j[away], z_r[away]
     w_np = None if weights is None else weights.numpy()
-    exact = np.array([fb.average_visibility_reference(
+    exact = np.array([fb_prefilter.average_visibility_reference(
         z[r], None if w_np is None else w_np[r], jj, zz) for r, jj, zz in zip(rows, j, z_r)])
     out = []
     for M in Ms:
-        filtered = fb.prefix_filter(mi.TensorXf(z), weights, M)
+        filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), weights, M)
         err = np.abs(visibility(filtered, rows, j, z_r, exact_bounds=exact_bounds) - exact)
         out.append((err.mean(), err.max()))
     return np.array(out)
@@ -202,7 +203,7 @@ def test_transmittance_weighted_visibility_converges_with_M():
     """§3.2 Eq. 11 weights (optical depth 3 over the row)."""
     n_rows, n = 6, 128
     z = blocky_rows(np.random.default_rng(6), n_rows, n)
-    w = fb.transmittance_weights(mi.Float(np.full(n_rows, 3.0 / n, F32)), n)
+    w = fb_basis.transmittance_weights(mi.Float(np.full(n_rows, 3.0 / n, F32)), n)
     err = convergence_errors(z, w, [16, 32, 64, 128], exact_bounds=False)
     assert np.all(err[1:, 0] < 0.75 * err[:-1, 0]), err
     assert err[-1, 0] < 0.005 and err[-1, 1] < 0.03, err[-1]
@@ -216,7 +217,7 @@ def test_ringing_overshoots_and_clamping_removes_it():
     """A planar blocker (one depth on the whole row) is the paper's worst case."""
     n, M = 16, 32
     z = np.full((1, n), 0.5, F32)
-    filtered = fb.prefix_filter(mi.TensorXf(z), None, M)
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), None, M)
     z_r = np.linspace(0.35, 0.65, 301).astype(F32)
     rows, j = np.zeros(z_r.size), np.full(z_r.size, n - 1.0)
     raw = visibility(filtered, rows, j, z_r, exact_bounds=False)
@@ -231,7 +232,7 @@ def test_ringing_overshoots_and_clamping_removes_it():
 
 def test_ringing_decays_away_from_the_step():
     n, M = 8, 32
-    filtered = fb.prefix_filter(mi.TensorXf(np.full((1, n), 0.5, F32)), None, M)
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(np.full((1, n), 0.5, F32)), None, M)
     z_r = np.array([0.2, 0.3, 0.7, 0.8], F32)
     raw = visibility(filtered, np.zeros(4), np.full(4, n - 1.0), z_r, exact_bounds=False)
     np.testing.assert_allclose(raw, [1, 1, 0, 0], atol=0.02)
@@ -245,9 +246,9 @@ def test_unblocked_rows_are_detected_and_exactly_lit():
     z = np.ones((4, 20), F32)
     z[1, 7] = 0.3
     z[3, :] = 0.999
-    assert list(fb.unblocked_rows(mi.TensorXf(z)).numpy()) == [True, False, True, False]
-    assert list(fb.unblocked_rows_reference(z)) == [True, False, True, False]
-    filtered = fb.prefix_filter(mi.TensorXf(z), None, 32)
+    assert list(fb_basis.unblocked_rows(mi.TensorXf(z)).numpy()) == [True, False, True, False]
+    assert list(fb_basis.unblocked_rows_reference(z)) == [True, False, True, False]
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32)
     z_r = np.array([0.0, 1e-4, 0.5, 0.9999, 1.0], F32)
     for row in (0, 2):
         for j in (0.0, 3.5, 19.0):
@@ -258,10 +259,10 @@ def test_unblocked_rows_are_detected_and_exactly_lit():
 def test_paper_series_wraps_around_at_depth_distance_one():
     """Plain Eq. 9 with z_r = 0 against unblocked texels gives 0.5, not 1;
     halving the depths (z ∈ [0, 1/2]) removes the wrap-around."""
-    filtered = fb.prefix_filter(mi.TensorXf(np.ones((1, 8), F32)), None, 32)
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(np.ones((1, 8), F32)), None, 32)
     v = visibility(filtered, [0, 0], [7.0, 7.0], [0.0, 0.5], exact_bounds=False)
     assert v[0] == pytest.approx(0.5, abs=1e-5) and v[1] == pytest.approx(1.0, abs=0.03)
-    halved = fb.prefix_filter(mi.TensorXf(np.full((1, 8), 0.5, F32)), None, 32)
+    halved = fb_prefilter.prefix_filter(mi.TensorXf(np.full((1, 8), 0.5, F32)), None, 32)
     v = visibility(halved, [0], [7.0], [0.0], exact_bounds=False)
     assert v[0] == pytest.approx(1.0, abs=0.03)
 
@@ -270,7 +271,7 @@ def test_paper_series_wraps_around_at_depth_distance_one():
 def test_ray_in_front_of_and_behind_every_blocker(exact_bounds):
     rng = np.random.default_rng(7)
     z = rng.uniform(0.4, 0.6, (3, 32)).astype(F32)
-    filtered = fb.prefix_filter(mi.TensorXf(z), None, 64)
+    filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), None, 64)
     rows, j = np.arange(3), np.array([31.0, 10.25, 0.0], F32)
     front = visibility(filtered, rows, j, np.full(3, 0.15), exact_bounds=exact_bounds)
     behind = visibility(filtered, rows, j, np.full(3, 0.85), exact_bounds=exact_bounds)
@@ -288,7 +289,7 @@ def test_depth_extremes_are_nan_free():
     j = np.array([0, 5, 2.5, 0, 5, 2.5, -1, 9, 5], F32)
     z_r = np.array([0, 0, 0, 1, 1, 1, 0, 1, 0.5], F32)
     for regions, fit_depth in [(1, False), (2, True), (3, False)]:
-        filtered = fb.prefix_filter(mi.TensorXf(z), None, 32, regions, fit_depth)
+        filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32, regions, fit_depth)
         for clamp in (False, True):
             for exact_bounds in (False, True):
                 v = visibility(filtered, rows, j, z_r, clamp=clamp, exact_bounds=exact_bounds)
@@ -306,8 +307,8 @@ def test_regions_alone_change_nothing_but_rounding():
     z = blocky_rows(rng, 4, 60)
     q = 200
     rows, j, z_r = rng.integers(0, 4, q), rng.random(q) * 59, rng.random(q)
-    one = visibility(fb.prefix_filter(mi.TensorXf(z), None, 32), rows, j, z_r, exact_bounds=False)
-    three = visibility(fb.prefix_filter(mi.TensorXf(z), None, 32, regions=3), rows, j, z_r,
+    one = visibility(fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32), rows, j, z_r, exact_bounds=False)
+    three = visibility(fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32, regions=3), rows, j, z_r,
                        exact_bounds=False)
     np.testing.assert_allclose(one, three, atol=2e-6)
 
@@ -319,11 +320,11 @@ def test_fit_depth_sharpens_narrow_depth_ranges():
     q = 300
     rows, j = rng.integers(0, 4, q), (rng.random(q) * 47).astype(F32)
     z_r = rng.uniform(0.45, 0.55, q).astype(F32)
-    exact = np.array([fb.average_visibility_reference(z[r], None, jj, zz)
+    exact = np.array([fb_prefilter.average_visibility_reference(z[r], None, jj, zz)
                       for r, jj, zz in zip(rows, j, z_r)])
     errors = []
     for regions, fit_depth in [(1, False), (2, True)]:
-        filtered = fb.prefix_filter(mi.TensorXf(z), None, 32, regions, fit_depth)
+        filtered = fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32, regions, fit_depth)
         errors.append(np.abs(visibility(filtered, rows, j, z_r) - exact).mean())
     assert errors[1] < 0.5 * errors[0], errors
 
@@ -332,9 +333,9 @@ def test_half_storage_stays_close():
     rng = np.random.default_rng(10)
     z = blocky_rows(rng, 3, 64)
     rows, j, z_r = rng.integers(0, 3, 300), rng.random(300) * 63, rng.random(300)
-    half = fb.prefix_filter(mi.TensorXf(z), None, 32, half=True)
+    half = fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32, half=True)
     assert half.B_bar.array.__class__ is mi.Float16
-    full = fb.prefix_filter(mi.TensorXf(z), None, 32)
+    full = fb_prefilter.prefix_filter(mi.TensorXf(z), None, 32)
     np.testing.assert_allclose(visibility(half, rows, j, z_r), visibility(full, rows, j, z_r),
                                atol=3e-4)
 
@@ -347,7 +348,7 @@ def test_half_storage_stays_close():
 def test_transmittance_weights_eq11_eq12(d):
     steps = np.array([1e-5, 0.01, 0.2], F32)
     n = 50
-    w = fb.transmittance_weights(mi.Float(steps), n, d).numpy()
+    w = fb_basis.transmittance_weights(mi.Float(steps), n, d).numpy()
     i = np.arange(n)
     tau = steps[:, None].astype(np.float64) * (i if d == 1.0 else (d ** i - 1) / (d - 1))
     expect = np.exp(-tau) * -np.expm1(-steps[:, None] * d ** i)
@@ -358,12 +359,12 @@ def test_transmittance_weights_eq11_eq12(d):
 
 def test_average_visibility_reference_by_hand():
     z = [0.2, 0.9, 0.9, 0.1]
-    assert fb.average_visibility_reference(z, None, 3, 0.5) == pytest.approx(0.5)
-    assert fb.average_visibility_reference(z, None, 1.5, 0.5) == pytest.approx(1.5 / 2.5)
-    assert fb.average_visibility_reference(z, [1, 3, 0, 0], 3, 0.5) == pytest.approx(0.75)
-    assert fb.average_visibility_reference(z, None, -3, 0.1) == 1.0
+    assert fb_prefilter.average_visibility_reference(z, None, 3, 0.5) == pytest.approx(0.5)
+    assert fb_prefilter.average_visibility_reference(z, None, 1.5, 0.5) == pytest.approx(1.5 / 2.5)
+    assert fb_prefilter.average_visibility_reference(z, [1, 3, 0, 0], 3, 0.5) == pytest.approx(0.75)
+    assert fb_prefilter.average_visibility_reference(z, None, -3, 0.1) == 1.0
 
 
 def test_bench_filter_runs():
-    r = fb.bench_filter(n_rows=4, n=16, M=8, pixels=64, reps=1)
+    r = fb_prefilter.bench_filter(n_rows=4, n=16, M=8, pixels=64, reps=1)
     assert r["prefilter_s"] > 0 and r["evaluate_s"] > 0 and math.isfinite(r["evaluate_s"])

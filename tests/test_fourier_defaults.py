@@ -9,9 +9,9 @@ import pytest
 
 import scenes
 from episcatter import metrics
-from integrators.fourier_references import (auto_reference_rays, decay_coordinate,
+from integrators.fourier.references import (auto_reference_rays, decay_coordinate,
                                             interpolated_kernel_reference)
-from integrators.fourier_rows import row_spacing, small_image_scale
+from integrators.fourier.rows import row_spacing, small_image_scale
 
 
 @lru_cache(maxsize=None)
@@ -91,20 +91,20 @@ def test_interpolated_reference_weights_follow_the_query_kernel():
 
 
 # --------------------------------------------------------------------------
-# The exact visibility sum (integrators.fourier_exact)
+# The exact visibility sum (integrators.fourier.exact)
 # --------------------------------------------------------------------------
 
 def _exact_inputs(name="sun_room", res=(24, 18)):
     """The rectified inputs of one fourier_filter render (channel 0)."""
-    from integrators.capture import capture_camera
-    from integrators.scene_params import SceneParams
+    from integrators.core.capture import capture_camera
+    from integrators.core.scene_params import SceneParams
 
     scene = _scene(name, res)
     integ = mi.load_dict({"type": "fourier_filter", "output": "scattering"})
     params = SceneParams.from_scene(scene)
     cap = capture_camera(params, spp=1, jitter=False, seed=0, surface=False)
     frame, slices, plan = integ.choose_rows(params, cap)
-    from integrators.epipolar_setup import assign_queries
+    from integrators.epipolar.queries import assign_queries
     queries = assign_queries(params, frame, slices, cap, integ.ring_degrees)
     captured = {}
 
@@ -142,7 +142,7 @@ import drjit as dr  # noqa: E402
 
 
 def test_exact_average_matches_its_numpy_oracle():
-    from integrators.fourier_exact import exact_average
+    from integrators.fourier.exact import exact_average
 
     inp = _exact_inputs()
     args = (inp["params"], inp["queries"], inp["rays"], inp["beta_b"], inp["cover"], inp["L"],
@@ -178,7 +178,7 @@ def test_beam_shaft_edges_bounded_at_the_defaults():
     320×240, 4.6e-2 here).  The default now shares each sample between its
     two slices and ray-marches those whose slices disagree
     (``remarch_disagreement``, the template's, as ``epipolar_tree``)."""
-    from integrators.epipolar_template import EpipolarIntegrator
+    from integrators.template.epipolar import EpipolarIntegrator
 
     res = (80, 60)
     ref = _reference("beam", res)
@@ -237,10 +237,11 @@ def test_shared_slices_bound_a_narrow_spot_on_sparse_slices(monkeypatch):
     (relMSE ≈ 30, mean 0.91); the default's two slices and the re-march of
     the samples they disagree on keep it bounded.  The lit cone's own
     slices and marched samples (issue 13) are off: they bound it alone."""
-    from integrators import epipolar_local_light as ell
-    from integrators import epipolar_setup
+    from integrators.epipolar.light_rays import local as ell
+    from integrators.epipolar import frame as epipolar_setup_frame
+    from integrators.epipolar import queries as epipolar_setup_queries
 
-    monkeypatch.setattr(epipolar_setup, "MIN_SLICE_PIXELS", 1)
+    monkeypatch.setattr(epipolar_setup_frame, "MIN_SLICE_PIXELS", 1)
     monkeypatch.setattr(ell, "CONE_MARCH_MIN", 0)
     monkeypatch.setattr(ell, "CONE_MARCH_FRACTION", 0.0)
     monkeypatch.setattr(ell, "MIN_LIT_SLICES", 0)
@@ -268,7 +269,7 @@ def test_no_leak_from_a_light_inside_a_closed_box(props):
     defaults (the filter) put 1.3e-2 of the unoccluded peak there, the
     direct sum 2.3e-3 (bound 1e-3): the slice's plane puts the inside of the
     box, lit, on the last texels of rays that end on its shadowed side
-    (traced now: integrators.fourier_tail), and the series blurs the step
+    (traced now: integrators.fourier.tail), and the series blurs the step
     of rays grazing it (the exact sum there now: series_unreliable)."""
     img, ref = _random_case(43, **props)
     assert np.max(ref) == 0.0
@@ -281,7 +282,7 @@ def test_end_runs_and_the_fallback_each_needed_for_the_closed_box():
     bound (1e-3 of the unoccluded peak): the traced end runs alone leave the
     grazing rays' blur (the filter: 1.3e-2), the fallback alone the end runs
     of the direct sum (2.3e-3; with the disagreement re-march off, which
-    since a lone sample's far-side query (epipolar_setup._slice_shares)
+    since a lone sample's far-side query (epipolar_setup_queries._slice_shares)
     catches part of it: 5.8e-4)."""
     peak = _unoccluded_peak(43)
     no_fallback, _ = _random_case(43, exact_fallback=False)

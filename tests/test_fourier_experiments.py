@@ -59,7 +59,7 @@ def test_table2_grid_is_the_papers():
 def test_recording_filter_logs_its_maps_without_patching(make_scene):
     """The probe overrides the ``rectified_map`` stage (no module global is
     replaced) and renders the same image as ``fourier_filter``."""
-    import integrators.fourier_filter as ff
+    from integrators.fourier import rectified_map as ff
     import mitsuba as mi
 
     original = ff.rectified_shadow_map

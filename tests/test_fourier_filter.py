@@ -8,20 +8,24 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.capture import capture_camera
-from integrators.epipolar_local_light import light_ray_factor
-from integrators.epipolar_setup import (EqualLightRays, assign_queries, blocker_modes,
-                                        choose_slices, epipolar_frame_of, light_side_factor,
-                                        rectified_depth)
-from integrators.light_models import Directional, light_model
+from integrators.core.capture import capture_camera
+from integrators.epipolar.local_light_factor import light_ray_factor
+from integrators.epipolar.light_rays.layout import EqualLightRays
+from integrators.epipolar.queries import assign_queries
+from integrators.epipolar.blockers import blocker_modes
+from integrators.epipolar.frame import choose_slices, epipolar_frame_of
+from integrators.epipolar.light_factor import light_side_factor
+from integrators.epipolar.light_rays.directional import rectified_depth
+from integrators.epipolar.light_models import Directional, light_model
 from integrators.fourier_filter import PROJECTIVE_MIN_ANGLE
-from integrators.fourier_setup import (Coverage, ProjectiveLightRays, eq12_ratio_reference,
-                                       eq12_weights_reference, query_beta_range,
-                                       query_depth_reference, rectified_shadow_map,
-                                       texel_integral, texel_integral_reference,
-                                       texel_separated_kernel)
-from integrators.partial_sum_tree import integrate_slices_reference
-from integrators.scene_params import SceneParams
+from integrators.fourier.rectified_map import (Coverage, eq12_ratio_reference,
+                                               eq12_weights_reference, query_beta_range,
+                                               rectified_shadow_map, texel_integral,
+                                               texel_integral_reference)
+from integrators.fourier.projective_rays import (ProjectiveLightRays, query_depth_reference,
+                                                 texel_separated_kernel)
+from integrators.tree.partial_sum_reference import integrate_slices_reference
+from integrators.core.scene_params import SceneParams
 from rectify import frustum_axis_angle
 from rectify.scenarios import light_toward_pixel
 from tests.conftest import scene_dict

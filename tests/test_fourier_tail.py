@@ -1,12 +1,12 @@
-"""The end runs of fourier_filter (integrators.fourier_tail) and the
-series' near-step band (integrators.fourier_basis) against NumPy oracles."""
+"""The end runs of fourier_filter (integrators.fourier.tail) and the
+series' near-step band (integrators.fourier.basis) against NumPy oracles."""
 
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators import fourier_basis as fb
-from integrators.fourier_tail import NO_RUN, TailVisibility, tail_run_reference, tail_runs
+from integrators.fourier import prefilter as fb
+from integrators.fourier.tail import NO_RUN, TailVisibility, tail_run_reference, tail_runs
 
 
 class _Queries:

@@ -4,9 +4,9 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.capture import capture_camera
-from integrators.hybrid_march import shadow_range
-from integrators.scene_params import SceneParams
+from integrators.core.capture import capture_camera
+from integrators.core.hybrid_march import shadow_range
+from integrators.core.scene_params import SceneParams
 from tests.conftest import scene_dict
 
 T = mi.ScalarTransform4f

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from integrators.integrand_svd import (choose_rank, directional_light_kernel,
-                                       relative_error, sample_grid, sample_integrand,
-                                       separate_integrand, truncation_errors)
+from integrators.epipolar.kernel.svd import (choose_rank, directional_light_kernel,
+                                             relative_error, sample_grid, sample_integrand,
+                                             separate_integrand, truncation_errors)
 
 
 def hg(beta, g=0.6):
@@ -121,7 +121,7 @@ def test_non_finite_integrand_is_rejected():
 
 def test_separation_feeds_the_tree():
     """End to end: an unshadowed slice integrates Σ_γ I(γ_c, β) Δγ."""
-    from integrators.partial_sum_tree import integrate_slices
+    from integrators.tree.partial_sum_tree import integrate_slices
     d, r, gamma_max = 256, 64, 10.0
     dg = gamma_max / d
     gamma, beta = (np.arange(d) + 0.5) * dg, np.linspace(0.2, 2.8, r)

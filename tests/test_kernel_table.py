@@ -1,4 +1,4 @@
-"""The tabulated Nyström sums (integrators.kernel_table) against the direct
+"""The tabulated Nyström sums (integrators.epipolar.kernel.table) against the direct
 64-term sums: per term, and in whole renders with more lanes than the table
 threshold (directional, point and textured spot light, HG phase)."""
 import math
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from episcatter.metrics import relmse_absolute as relmse
-from integrators import kernel_table
-from integrators.kernel_separation import exp_kernel_sum, separate_channel
+from integrators.epipolar.kernel import table as kernel_table
+from integrators.epipolar.kernel.separation import exp_kernel_sum, separate_channel
 from tests.conftest import scene_dict
 
 

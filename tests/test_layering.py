@@ -96,8 +96,48 @@ def test_no_private_name_crosses_modules(path):
 
 def test_checker_resolves_relative_and_private_imports():
     """The checks above would see a module that breaks the rules."""
-    src = "from integrators.template import _x\nfrom . import slices\nfrom ..integrators import a\n"
+    src = "from integrators.template.base import _x\nfrom . import slices\nfrom ..integrators import a\n"
     found = list(imports_in(src, "rectify.probe"))
-    assert ("integrators.template", ("_x",)) in found
+    assert ("integrators.template.base", ("_x",)) in found
     assert ("rectify.slices", ()) in found
     assert ("integrators", ("a",)) in found
+
+
+#: the sub-packages of ``integrators`` in layer order (DESIGN §6): a module
+#: imports only from its own package or from a lower layer; the plugins
+#: (the modules directly in ``integrators/``) sit above them all
+PACKAGE_LAYERS = {"core": 0, "epipolar": 1, "partial": 2, "tree": 3, "fourier": 3, "minmax": 3,
+                  "template": 4}
+PLUGIN_LAYER = 5
+
+
+def layer_of(module: str) -> tuple[str, int] | None:
+    """(package, layer) of an ``integrators`` module, None for the registry."""
+    parts = module.split(".")
+    if parts[0] != "integrators" or len(parts) == 1:
+        return None
+    if parts[1] in PACKAGE_LAYERS:
+        return parts[1], PACKAGE_LAYERS[parts[1]]
+    return parts[1], PLUGIN_LAYER
+
+
+def test_every_integrators_package_has_a_layer():
+    packages = {p.name for p in (ROOT / "integrators").iterdir()
+                if p.is_dir() and (p / "__init__.py").exists()}
+    assert packages == set(PACKAGE_LAYERS), "give each integrators/ package a layer"
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "integrators").rglob("*.py")), ids=module_name)
+def test_imports_go_down_the_layers(path):
+    me = layer_of(module_name(path))
+    if me is None:
+        return
+    bad = []
+    for m, _ in imports_of(path):
+        other = layer_of(m)
+        if other is None or other[0] == me[0]:
+            continue
+        if other[1] >= me[1]:
+            bad.append(m)
+    assert not bad, (f"{module_name(path)} (layer {me[1]}) imports {sorted(set(bad))}: "
+                     "imports go only down the layers (tests/test_layering.py PACKAGE_LAYERS)")

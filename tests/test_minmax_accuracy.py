@@ -6,7 +6,7 @@ import pytest
 from episcatter import metrics
 from integrators.minmax import refinement as rf
 from integrators.minmax import slices_and_samples as ss
-from integrators.scene_params import SceneParams
+from integrators.core.scene_params import SceneParams
 
 from tests.test_minmax_epipolar import exact, render
 

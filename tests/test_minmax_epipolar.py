@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from episcatter import metrics
-from integrators.capture import capture_camera
-from integrators.epipolar_setup import epipolar_frame_of
+from integrators.core.capture import capture_camera
+from integrators.epipolar.frame import epipolar_frame_of
 from integrators.minmax import light_rays as lr
 from integrators.minmax import minmax_tree as mt
 from integrators.minmax import refinement as rf
 from integrators.minmax import section_integral as si
 from integrators.minmax import slices_and_samples as ss
 from integrators.minmax.profiles import profile_settings
-from integrators.scene_params import SceneParams
+from integrators.core.scene_params import SceneParams
 
 HG = {"type": "hg", "g": 0.6}
 

@@ -1,10 +1,10 @@
-"""integrators.opaque: frame constants as kernel parameters, exact."""
+"""integrators.core.opaque: frame constants as kernel parameters, exact."""
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.opaque import Divisor, reciprocal, scalar, shared_scalars
+from integrators.core.opaque import Divisor, reciprocal, scalar, shared_scalars
 
 DIVISORS = list(range(1, 130)) + [255, 256, 257, 1023, 1024, 1025, 4095, 4096, 4097, 65535,
                                   65536, 65537, 123456789, 2**31 - 1, 2**31, 2**32 - 1]

@@ -8,8 +8,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.capture import capture_camera
-from integrators.scene_params import SceneParams
+from integrators.core.capture import capture_camera
+from integrators.core.scene_params import SceneParams
 from tests.conftest import scene_dict
 
 RES = (20, 15)

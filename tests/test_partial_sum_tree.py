@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-import integrators.partial_sum_tree as pst
-from integrators.partial_sum_tree import (BlockerModes, integrate_slices,
-                                          integrate_slices_reference)
+from integrators.tree import partial_sum_tree as pst
+from integrators.epipolar.blockers import BlockerModes
+from integrators.tree.partial_sum_tree import integrate_slices
+from integrators.tree.partial_sum_reference import integrate_slices_reference
 
 INF = np.float32(np.inf)
 

@@ -77,11 +77,11 @@ CLASS_SEEDS = {
          "by 4.7 %; ring samples within a pixel of the light take 8x the steps",
     29: "narrow_spot: mean -20 %, relMSE 1.5e-2; the spot's dark rows (γ from 0) set the "
         "separated kernel's domain, whose relative tolerance then left the cone 80° from the "
-        "eye all error (epipolar_local_light.lit_domain)",
+        "eye all error (epipolar.kernel.local.lit_domain)",
     # session 3 (fail on main 1155186, pass after; main's numbers)
     72: "thick directional (σt·B = 11): relMSE 0.78, max error 0.21 x peak; a view ray toward "
         "the light sums K·L ≈ e^{-10} of ∫K, the rank's relative tolerance was all error there "
-        "(kernel_separation.checked_tolerances: N 7 -> 11)",
+        "(epipolar.kernel.separation.checked_tolerances: N 7 -> 11)",
     86: "thick directional (σt·B = 12): relMSE 3.4e-2, max error 0.43 x peak; checked "
         "tolerances (N 3 -> 6)",
     117: "narrow spot (0.75°, 9 lit slices): relMSE 9.9e-3, mean -4.6 %; denser slices in the "
@@ -140,7 +140,7 @@ def test_disagreeing_slices_are_remarched(monkeypatch):
     (resolve_lit_cone), both switched off here.)"""
     from episcatter.reference import render_rgb
     from experiments import common as c
-    from integrators import epipolar_local_light as ell
+    from integrators.epipolar.light_rays import local as ell
 
     monkeypatch.setattr(ell, "CONE_MARCH_MIN", 0)
     monkeypatch.setattr(ell, "CONE_MARCH_FRACTION", 0.0)
@@ -218,9 +218,9 @@ def test_narrow_cone_gets_dense_slices_and_its_samples_marched():
     now at least MIN_LIT_SLICES; a point light's slices are left alone.
     cone_samples lists the samples the cone reaches (few: all of them)."""
     import integrators  # noqa: F401 -- registers the plugins
-    from integrators import epipolar_local_light as ell
-    from integrators.epipolar_setup import choose_slices, epipolar_frame_of
-    from integrators.scene_params import SceneParams
+    from integrators.epipolar.light_rays import local as ell
+    from integrators.epipolar.frame import choose_slices, epipolar_frame_of
+    from integrators.core.scene_params import SceneParams
 
     p = SceneParams.from_scene(rs.random_scene(117).load())
     frame = epipolar_frame_of(p)
@@ -256,7 +256,7 @@ def test_issue13_tree_matches_the_float64_oracle(seed):
     into the view, so they are left out)."""
     from episcatter.reference import render_rgb
     from experiments import common as c
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
     from tests import oracles
 
     spec = rs.random_scene(seed)
@@ -276,7 +276,7 @@ def test_unresolved_sums_are_remarched(monkeypatch):
     error (relMSE ~1)."""
     from episcatter.reference import render_rgb
     from experiments import common as c
-    from integrators import epipolar_setup as es
+    from integrators.epipolar import last_interval as es
 
     scene = rs.random_scene(31).load()
     ref = render_rgb(scene, c.build("raymarch", {"visibility": "exact", "steps": 2048,

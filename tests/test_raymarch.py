@@ -19,7 +19,7 @@ def test_unshadowed_homogeneous_slab_closed_form():
     d = scene_dict(surface=0.0, blocker=None, floor=None, res=(8, 6), sigma_t=0.5,
                    phase={"type": "isotropic"})
     scene = mi.load_dict(d)
-    from integrators.scene_params import SceneParams
+    from integrators.core.scene_params import SceneParams
     p = SceneParams.from_scene(scene)
     out = render(scene, visibility="exact", steps=4096, output="scattering")["scattering"]
     expected = unshadowed_directional(p, (8, 6), samples=200000)[..., 0]
@@ -102,8 +102,8 @@ def _occluder_across_the_box(shape):
 
 
 def _visible(scene, X):
-    from integrators.light_transport import sample_light, segment_box, visible_exact
-    from integrators.scene_params import SceneParams
+    from integrators.core.light_transport import sample_light, segment_box, visible_exact
+    from integrators.core.scene_params import SceneParams
 
     p = SceneParams.from_scene(scene)
     x = mi.Point3f(*[mi.Float(X[:, i].astype(np.float32)) for i in range(3)])
@@ -143,8 +143,8 @@ def test_first_blocker_finds_an_occluder_where_it_crosses_the_box(shape):
     untested gaps let the tree leak 4.6e-3 and 3.1e-3 of the unoccluded
     peak on seeds 43 and 98 once their references were black."""
     from experiments.random_scenes import _rotation
-    from integrators.light_transport import first_blocker
-    from integrators.scene_params import SceneParams
+    from integrators.core.light_transport import first_blocker
+    from integrators.core.scene_params import SceneParams
 
     scene = _occluder_across_the_box(shape)
     p = SceneParams.from_scene(scene)
@@ -209,7 +209,7 @@ def test_enclosed_random_scene_reference_is_black(seed):
 
 @pytest.mark.parametrize("light", ["directional", "spot_textured", "point"])
 def test_boundary_bisections_converge_faster_to_the_fine_march(light):
-    """``boundary_bisections`` (marching.march_bisected) places each shadow
+    """``boundary_bisections`` (core.marching.march_bisected) places each shadow
     and cone edge inside its segment: at 32 steps it is several times closer
     to a 8192-step midpoint march than the 32-step midpoint march is, and it
     converges to the same image."""
@@ -242,7 +242,7 @@ def test_boundary_bisections_see_no_light_through_a_closed_box(seed):
     point now lies END_NUDGE of a segment before the end.  Seeds 208, 263
     and 274 lit one pixel each: a shadow ray along a face's diagonal slipped
     between its two triangles; lit verdicts where ℓ rises are now confirmed
-    by a shifted ray (light_transport.visible_confirmed)."""
+    by a shifted ray (core.light_transport.visible_confirmed)."""
     from experiments import random_scenes as rs
 
     scene = rs.random_scene(seed).load()
@@ -258,9 +258,9 @@ def test_visible_confirmed_closes_a_mesh_crack():
     between its triangles (visible_exact: lit); the shifted ray is blocked.
     Away from cracks both agree."""
     from experiments import random_scenes as rs
-    from integrators.light_transport import (sample_light, segment_box, visible_confirmed,
-                                             visible_exact)
-    from integrators.scene_params import SceneParams
+    from integrators.core.light_transport import (sample_light, segment_box, visible_confirmed,
+                                                  visible_exact)
+    from integrators.core.scene_params import SceneParams
 
     scene = rs.random_scene(263).load()
     params = SceneParams.from_scene(scene, 0)

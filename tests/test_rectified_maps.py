@@ -3,11 +3,11 @@ resampled from a classic shadow map (rectify issue, point 2).
 
 ``epipolar_tree`` builds its blocker map S[α, γ] either by ray-tracing every
 light ray of every slice with Mitsuba (``rectification="traced"``,
-:func:`~integrators.epipolar_setup.trace_blocker_angles`,
-:func:`~integrators.epipolar_local_light.trace_local_blocker_angles`) or, as
+:func:`~integrators.epipolar.blockers.trace_blocker_angles`,
+:func:`~integrators.epipolar.local_blockers.trace_local_blocker_angles`) or, as
 Baran et al. 2010 §3 do, by reading the blocker depth of each light ray from
 a square shadow map, nearest texel (``"resampled"``,
-:func:`~integrators.epipolar_setup.shadow_map_blocker_angles`, both light
+:func:`~integrators.epipolar.blockers.shadow_map_blocker_angles`, both light
 kinds).
 Here both are built on suite scenes at 64x48 as ``epipolar_tree`` builds
 them (sinh slices, 2° ring, the automatic ``d`` = 80 light rays per slice),
@@ -18,7 +18,7 @@ compared:
   the other;
 - ``β error``: |β_traced − β_resampled| of the light rays blocked in both;
 - ``index``: fraction of light rays whose blocker lands on a different view
-  ray of the sweep (:func:`~integrators.epipolar_setup.blocker_modes`: the
+  ray of the sweep (:func:`~integrators.epipolar.blockers.blocker_modes`: the
   number of the slice's queries with β_q ≤ S), i.e. that shadow a different
   set of pixels;
 - ``flips``: fraction of the visibility samples the sweep actually uses
@@ -80,9 +80,9 @@ What the numbers say:
   shrinking only like ~texel^0.6; elsewhere it is 0.05-0.2 % at 2048².
   ``traced`` has none of this.
 - Aside (why ``explained`` uses the map's tracer): tracing the same
-  texel-centre lines with :func:`~integrators.light_transport.first_blocker`
+  texel-centre lines with :func:`~integrators.core.light_transport.first_blocker`
   instead gives a different first leaf on 1.4 % of the grove's light rays at
-  1024², because :func:`~integrators.capture.first_surface` re-spawns the
+  1024², because :func:`~integrators.core.capture.first_surface` re-spawns the
   map's rays where they enter the null medium box, offset ~2.4 mm along the
   box normal (~1.8 mm sideways; the grove's box reaches 52 m): a shift far
   below the texel (5 cm at 1024²), but visible in dense foliage.
@@ -101,12 +101,17 @@ import pytest
 
 import scenes
 from episcatter.scene_loading import load_scene
-from integrators import epipolar_local_light as ell
-from integrators import epipolar_setup as es
-from integrators.capture import capture_camera, capture_shadow_map, first_surface
-from integrators.light_models import light_model
-from integrators.light_transport import point
-from integrators.scene_params import SceneParams
+from integrators.epipolar.light_rays import local as ell_local
+from integrators.epipolar import local_blockers as ell_local_blockers
+from integrators.epipolar import local_light_factor as ell_local_light_factor
+from integrators.epipolar import blockers as es_blockers
+from integrators.epipolar import frame as es_frame
+from integrators.epipolar.light_rays import directional as es_directional
+from integrators.epipolar import queries as es_queries
+from integrators.core.capture import capture_camera, capture_shadow_map, first_surface
+from integrators.epipolar.light_models import light_model
+from integrators.core.light_transport import point
+from integrators.core.scene_params import SceneParams
 from rectify.coords import light_coords_to_world
 
 RES = {"res_x": 64, "res_y": 48}
@@ -128,30 +133,30 @@ def setup(name: str):
     one sub-ray per light ray (its centre)."""
     params = SceneParams.from_scene(load_scene(scenes.path(name), RES))
     cap = capture_camera(params, surface=False)
-    frame = es.epipolar_frame_of(params)
-    queries = es.assign_queries(params, frame, es.choose_slices(frame, 0), cap, RING_DEG)
+    frame = es_frame.epipolar_frame_of(params)
+    queries = es_queries.assign_queries(params, frame, es_frame.choose_slices(frame, 0), cap, RING_DEG)
     if params.light.kind == "directional":
-        rays = es.light_ray_grid(params, queries)
+        rays = es_directional.light_ray_grid(params, queries)
         lit = np.ones(queries.n * rays.d, bool)
-        traced = es.trace_blocker_angles(params, queries, rays, 1)
+        traced = es_blockers.trace_blocker_angles(params, queries, rays, 1)
     else:
         t_end_max = float(dr.max(queries.t_near)[0]) + float(dr.max(cap.d)[0])
-        rays = ell.local_light_ray_grid(params, queries, 0, t_end_max)
-        _, _, lit_mask = ell.light_ray_factor(params, queries, rays, 1)
+        rays = ell_local.local_light_ray_grid(params, queries, 0, t_end_max)
+        _, _, lit_mask = ell_local_light_factor.light_ray_factor(params, queries, rays, 1)
         lit = np.array(lit_mask, bool)          # existing light rays that carry light
-        traced = ell.trace_local_blocker_angles(params, queries, rays, 1, lit=lit_mask)
+        traced = ell_local_blockers.trace_local_blocker_angles(params, queries, rays, 1, lit=lit_mask)
     return params, cap, queries, rays, lit, traced
 
 
 def texel_centre_angles(params, queries, rays, shadow_map) -> mi.Float:
     """β_b of each light ray's blocker if it were traced through the centre
     of the texel the resampled map reads for it (the nearest texel), with the
-    map's own tracer (:func:`~integrators.capture.first_surface`, from the
+    map's own tracer (:func:`~integrators.core.capture.first_surface`, from the
     map's plane or the light) and its bias applied as the map applies it:
     what ``shadow_map_*blocker_angles`` must return if the only difference
     from ``traced`` is where the light ray is sampled."""
     frame = queries.frame
-    s, gamma = es.sub_ray_gamma(rays, 1, 0)
+    s, gamma = es_blockers.sub_ray_gamma(rays, 1, 0)
     alpha = dr.gather(mi.Float, queries.alpha, s)
     res = shadow_map.res
     if frame.is_directional:
@@ -165,7 +170,7 @@ def texel_centre_angles(params, queries, rays, shadow_map) -> mi.Float:
         si, _ = first_surface(params.scene, mi.Ray3f(origin, -w))
         u_b = dr.dot(mi.Vector3f(si.p - mi.Point3f(point(params.camera.origin))), w)
         return dr.select(si.is_valid(), dr.atan2(gamma, u_b - shadow_map.bias), math.pi)
-    w = ell.light_ray_direction(frame, alpha, gamma)
+    w = ell_local.light_ray_direction(frame, alpha, gamma)
     p_l = mi.Point3f(point(frame.light_position))
     face, u, v, _ = shadow_map._coords(p_l + w * float(frame.light_distance))
     iu = mi.Float(dr.clip(dr.round(u), 0, res - 1))
@@ -175,7 +180,7 @@ def texel_centre_angles(params, queries, rays, shadow_map) -> mi.Float:
     b = ((iv + 0.5) / res * 2 - 1) * shadow_map.tan_half
     si, _ = first_surface(params.scene, mi.Ray3f(p_l, dr.normalize(fwd + right * a + up * b)))
     r_b = dr.norm(mi.Vector3f(si.p - p_l))
-    return dr.select(si.is_valid(), ell._eye_beta(frame, p_l + w * (r_b + shadow_map.bias)),
+    return dr.select(si.is_valid(), ell_local_blockers._eye_beta(frame, p_l + w * (r_b + shadow_map.bias)),
                      math.pi)
 
 
@@ -183,7 +188,7 @@ def _sweep_arrays(queries, rays):
     """NumPy (row, β, D) of the queries and the padded β table per row."""
     row = np.array(queries.row)
     beta = np.array(queries.beta)
-    D = np.array(es.rectified_depth(queries, rays))[row, np.array(queries.col)]
+    D = np.array(es_directional.rectified_depth(queries, rays))[row, np.array(queries.col)]
     return row, beta, D
 
 
@@ -194,8 +199,8 @@ def compare(traced, resampled, lit, queries, rays) -> dict:
     both = blocked_t & blocked_r
     err = np.degrees(np.abs(bt[both] - br[both]))
     s = np.repeat(np.arange(queries.n), rays.d)[lit]
-    idx_t = np.array(es.searchsorted_rows(queries, mi.UInt32(s), mi.Float(bt)))
-    idx_r = np.array(es.searchsorted_rows(queries, mi.UInt32(s), mi.Float(br)))
+    idx_t = np.array(es_queries.searchsorted_rows(queries, mi.UInt32(s), mi.Float(bt)))
+    idx_r = np.array(es_queries.searchsorted_rows(queries, mi.UInt32(s), mi.Float(br)))
     # visibility samples the sweep uses: query q, light ray g with g + 1/2 < D_q
     row, beta, D = _sweep_arrays(queries, rays)
     d = rays.d

@@ -4,7 +4,7 @@ rounding) along the direction from the light.
 
 Along that ray the angle θ = atan2(t − t0, b) the ray subtends at the light
 stays within float32's spacing of π/2 (b, the ray's distance to the light,
-is ~1e-7 of its distance), and ``marching.march_bisected`` -- the working
+is ~1e-7 of its distance), and ``core.marching.march_bisected`` -- the working
 reference (``boundary_bisections``) and the epipolar methods' ring and
 re-marched samples (``ring_bisections``) -- took its ∫ dt / r² as the
 difference of two such angles: 0, a black anti-epipole pixel (or a few

@@ -1,4 +1,4 @@
-"""Per-slice partial renders (integrators.row_subset): the slices a moved box
+"""Per-slice partial renders (integrators.partial.row_subset): the slices a moved box
 can reach against a dense NumPy oracle, partial renders that compute a few
 rows and equal the full render there, and a frame whose frame-wide choices
 changed rendered in full."""
@@ -10,10 +10,10 @@ import pytest
 
 from episcatter.motion import parse_motion
 from episcatter.sequence import Sequence
-from integrators.change_mask import Boxes
-from integrators.epipolar_setup import epipolar_frame_of
-from integrators.row_subset import in_arcs, slice_arcs, slice_meets_boxes_reference
-from integrators.scene_params import SceneParams
+from integrators.core.shadow_volumes import Boxes
+from integrators.epipolar.frame import epipolar_frame_of
+from integrators.partial.row_subset import in_arcs, slice_arcs, slice_meets_boxes_reference
+from integrators.core.scene_params import SceneParams
 from tests.conftest import scene_dict
 from tests.test_sequence import MOTIONS, animated_scene, full_render
 

@@ -5,7 +5,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.scene_params import SceneParams
+from integrators.core.scene_params import SceneParams
 from tests.conftest import LIGHTS, T, scene_dict
 
 

@@ -5,7 +5,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.template import read_bool
+from integrators.core.properties import read_bool
 from tests.conftest import scene_dict
 
 FAST = {"type": "raymarch", "steps": 4, "visibility": "exact"}

@@ -40,7 +40,7 @@ def test_rgb_mono_rgb_in_one_process():
 
 UNSUPPORTED = """
 import integrators, mitsuba as mi
-from integrators.template import check_variant
+from integrators.template.base import check_variant
 for v in {variants!r}:
     try:
         check_variant(v)

@@ -6,18 +6,15 @@ trees"), each lit section closed-form (directional) or from the table
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
-
 from rectify import view_to_light
 
-from ..light_transport import color, first_blocker, phase_eval
+from ..core.light_transport import color, first_blocker, phase_eval
+from ..core.opaque import floats, scalar, vector
 from .light_rays import SliceLightRays, texel_colour, texel_rays, traced_bias
 from .minmax_tree import MinMaxTree, SliceRays, march_tree
-from ..opaque import floats, scalar, vector
-from .section_integral import (PointTable, box_path, directional_section, point_ray,
-                               point_section)
+from .section_integral import PointTable, box_path, directional_section, point_ray, point_section
 from .slices_and_samples import EpipolarSamples
 
 

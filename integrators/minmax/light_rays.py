@@ -25,17 +25,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-
 from rectify import EpipolarFrame, light_coords_to_world, view_to_light
 
-from ..epipolar_local_light import cone_interval
-from ..light_transport import color, first_blocker, sample_light, segment_box
-from ..opaque import Divisor, floats, point, scalar, vector
+from ..core.light_transport import color, first_blocker, sample_light, segment_box
+from ..core.opaque import Divisor, floats, point, scalar, vector
+from ..epipolar.light_rays.local import cone_interval
 from .slices_and_samples import EpipolarSamples
+
 
 SOURCES = ("traced", "resampled")
 #: shadow-test bias relative to the scene size (as the shadow map's):

@@ -51,15 +51,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-
 from rectify import EpipolarFrame, ray_meeting_t, view_to_light
 
+from ..core.opaque import colour as opaque_colour, floats, scalar
 from .light_rays import SliceLightRays
-from ..opaque import colour as opaque_colour, floats, scalar
 
 
 #: a node's colour counts as uniform when its min and max agree to this

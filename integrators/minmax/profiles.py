@@ -15,6 +15,7 @@ march every pixel of images smaller than their samples (correct first);
 """
 from __future__ import annotations
 
+
 #: (screen width, height) -> profile -> (slices, samples, shadow map size)
 TALK_TABLES = {
     (2560, 1600): {"high_quality": (2048, 1024, 4096), "balanced": (1024, 1024, 2048),

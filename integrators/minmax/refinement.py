@@ -38,13 +38,13 @@ texture").
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..opaque import mean, scalar_i32, scalar_u32
+from ..core.opaque import mean, scalar_i32, scalar_u32
 from .slices_and_samples import EpipolarSamples
+
 
 CRITERIA = ("depth", "inscattering", "visibility")
 THRESHOLD_MODES = ("relative", "absolute")

@@ -39,13 +39,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..light_transport import color, phase_eval
-from ..opaque import floats, point, reciprocal, scalar
+from ..core.light_transport import color, phase_eval
+from ..core.opaque import floats, point, reciprocal, scalar
+
 
 #: |k·L| below which ∫ e^{-k s} ds uses its Taylor series
 SERIES_LIMIT = 1e-3

@@ -17,7 +17,7 @@ depth; the fix-up march).
 A partial render handed the last frame's :class:`SliceState` therefore
 
 1. re-traces only the slices whose half-plane meets a moved box
-   (:func:`~integrators.row_subset.moved_slices`, the machinery
+   (:func:`~integrators.partial.row_subset.moved_slices`, the machinery
    ``epipolar_tree`` uses) and recomputes their values; the others keep
    the last frame's;
 2. takes the frame's constant colour from every slice's texel colour
@@ -35,15 +35,14 @@ the whole frame.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..row_subset import moved_slices, put_rows, same_slices
-from ..opaque import uints
+from ..core.opaque import uints
 from .slices_and_samples import EpipolarSamples, SampleLayout
 from .unwarp import pixel_slices
+from ..partial.row_subset import moved_slices, put_rows, same_slices
 
 
 @dataclass(frozen=True, eq=False)

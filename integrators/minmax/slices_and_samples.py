@@ -6,7 +6,7 @@ Sampling: Sample generation" and "improved sample placement").
   lines converge on the anti-epipole, "in exactly the same way").  ``slices``
   a number: about that many exit points equally spaced along the exit edges
   (the talk); ``auto``: Baran's sinh placement, every pixel centre within
-  half a pixel of a slice (:func:`integrators.epipolar_setup.choose_slices`).
+  half a pixel of a slice (:func:`integrators.epipolar.frame.choose_slices`).
 * Samples: ``samples`` per slice between the entry and the exit point of the
   slice's on-screen segment, the border shrunk by half a pixel (so the end
   samples sit on pixel centres), placed uniformly in the angle ``β`` from the
@@ -22,18 +22,17 @@ Sampling: Sample generation" and "improved sample placement").
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-
 from rectify import BetaGrid, EpipolarFrame, Slices, grid_directions, per_slice_beta_grid
 from rectify import project_direction, slice_segments
 
-from ..capture import first_surface
-from ..epipolar_setup import choose_slices, epipolar_frame_of
-from ..light_transport import box_exit_distance
-from ..opaque import floats, point, scalar, uints
+from ..core.capture import first_surface
+from ..core.light_transport import box_exit_distance
+from ..core.opaque import floats, point, scalar, uints
+from ..epipolar.frame import choose_slices, epipolar_frame_of
+
 
 #: half a pixel: the border the end samples sit on (pixel centres)
 BORDER_SHRINK_PX = 0.5
@@ -166,4 +165,3 @@ def epipolar_samples(params, slices="auto", samples: int = 256,
                      density: float = 1.0) -> EpipolarSamples:
     """Stage 1 of the pipeline: frame, slices, rescaled samples, traced depths."""
     return trace_layout(params, sample_layout(params, slices, samples, density))
-

@@ -6,8 +6,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..light_transport import color, phase_eval
-from ..opaque import vector
+from ..core.light_transport import color, phase_eval
+from ..core.opaque import vector
 from .section_integral import box_path, directional_section, point_ray, point_section
 from .slices_and_samples import EpipolarSamples
 

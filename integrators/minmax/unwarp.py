@@ -24,17 +24,16 @@ value.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
 import drjit as dr
 import mitsuba as mi
-
 from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
-from ..capture import CameraCapture
-from ..epipolar_setup import disagreeing, peak_marched
-from ..marching import auto_spacing, march
-from ..opaque import floats, two_or_more
+from ..core.capture import CameraCapture
+from ..core.marching import auto_spacing, march
+from ..core.opaque import floats, two_or_more
+from ..epipolar.ring import disagreeing, peak_marched
 from .slices_and_samples import EpipolarSamples
+
 
 #: default relative depth scale of the bilateral weights (module docstring)
 DEPTH_SIGMA = 0.03
@@ -145,7 +144,7 @@ def disagreeing_pixels(taps: UnwarpTaps, tolerance: float, peak: mi.Float) -> mi
     darkest and the brightest differ by more than ``tolerance`` of the
     brighter and by more than ``tolerance``·1e-2 of ``peak`` (the frame's
     largest channel sum, :func:`frame_peak`), by
-    :func:`~integrators.epipolar_setup.disagreeing`, the test the
+    :func:`~integrators.epipolar.ring.disagreeing`, the test the
     epipolar template applies to a camera sample's two slices.  A shadow
     edge or a narrow beam runs between such taps, so their blend estimates
     neither side: :func:`fixup` ray-marches these pixels.
@@ -178,7 +177,7 @@ def fixup(params, cap: CameraCapture, frame, L_pixel: mi.Color3f, weight: mi.Flo
     pixels ``L_pixel``, ``weight`` and ``also`` hold (None: every pixel);
     ``fixup`` lists the re-marched ones by their position there.  Traced
     blockers (no ``shadow_map``): the epipolar methods' exact marcher
-    (:func:`~integrators.epipolar_setup.peak_marched`: its shadow and cone
+    (:func:`~integrators.epipolar.ring.peak_marched`: its shadow and cone
     edges located by ``bisections`` bisections, the pixels at a point
     light's peak with more steps; ``frame``: the light's epipolar frame);
     resampled: the shadow map's."""

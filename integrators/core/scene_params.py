@@ -1,0 +1,321 @@
+"""Reading and validating a Mitsuba scene (DESIGN §3 ``SceneParams``).
+
+This is the only module that queries Mitsuba scene objects for their
+parameters.  :func:`SceneParams.from_scene` returns frozen dataclasses for the
+camera, the homogeneous medium attached to the sensor (with its box boundary)
+and the single light, or raises :class:`ValueError` naming the offending object
+and what to change.  Nothing unsupported renders silently wrong.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+import mitsuba as mi
+import numpy as np
+from rectify.camera import CameraParams
+
+
+SUPPORTED_PHASES = {
+    "IsotropicPhaseFunction": "isotropic",
+    "HGPhaseFunction": "hg",
+    "RayleighPhaseFunction": "rayleigh",
+    "BlendPhaseFunction": "blendphase",
+}
+SUPPORTED_EMITTERS = {
+    "DirectionalEmitter": "directional",
+    "PointLight": "point",
+    "SpotLight": "spot",
+}
+
+
+def _name(obj) -> str:
+    """A user-facing name for a Mitsuba object: its id and plugin class."""
+    ident = obj.id() if hasattr(obj, "id") else ""
+    cls = obj.class_name() if hasattr(obj, "class_name") else type(obj).__name__
+    return f"{cls} '{ident}'" if ident else cls
+
+
+def _vec(value, n=3) -> np.ndarray:
+    """Mitsuba scalar/colour/point parameter -> float64 numpy array of length n."""
+    arr = np.array(value, dtype=np.float64).reshape(-1)
+    if arr.size == 1:
+        arr = np.repeat(arr, n)
+    return arr[:n]
+
+
+def _param(obj, *keys):
+    """First of ``keys`` present in ``mi.traverse(obj)``."""
+    params = mi.traverse(obj)
+    for k in keys:
+        if k in params:
+            return params[k]
+    raise ValueError(f"{_name(obj)}: cannot read any of {keys}; "
+                     "episcatter needs constant (non-textured) values here.")
+
+
+def _check_finite_nonneg(what: str, values: np.ndarray, fix: str) -> None:
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{what} is not finite ({values.tolist()}): {fix}")
+    if np.any(values < 0):
+        raise ValueError(f"{what} is negative ({values.tolist()}): {fix}")
+
+
+@dataclass(frozen=True, eq=False)
+class MediumParams:
+    """Homogeneous medium (DESIGN §1): σt, σs = albedo·σt per unit length (RGB),
+    the phase function and the axis-aligned box that bounds the medium."""
+    sigma_t: np.ndarray
+    albedo: np.ndarray
+    phase_kind: str
+    bounds_min: np.ndarray
+    bounds_max: np.ndarray
+    phase: object = field(repr=False, default=None)
+    medium: object = field(repr=False, default=None)
+
+    @property
+    def sigma_s(self) -> np.ndarray:
+        return self.albedo * self.sigma_t
+
+    def contains(self, p, rel_eps=1e-6) -> bool:
+        ext = float(np.max(self.bounds_max - self.bounds_min))
+        eps = rel_eps * ext
+        p = np.asarray(p, dtype=np.float64)
+        return bool(np.all(p > self.bounds_min - eps) and np.all(p < self.bounds_max + eps))
+
+
+@dataclass(frozen=True, eq=False)
+class LightParams:
+    """The scene's single emitter.  ``direction`` (directional lights) points
+    from the scene *toward* the light; ``position`` is set for point/spot."""
+    kind: str                       # 'directional' | 'point' | 'spot'
+    radiance: np.ndarray            # irradiance (directional) or intensity (RGB)
+    direction: np.ndarray | None = None
+    position: np.ndarray | None = None
+    spot_axis: np.ndarray | None = None
+    cutoff_angle: float = 0.0       # degrees (spot)
+    beam_width: float = 0.0         # degrees (spot)
+    textured: bool = False
+    emitter: object = field(repr=False, default=None)
+
+
+@dataclass(frozen=True, eq=False)
+class SceneParams:
+    camera: CameraParams
+    medium: MediumParams
+    light: LightParams
+    scene: object = field(repr=False, default=None)
+    sensor: object = field(repr=False, default=None)
+
+    @property
+    def scene_extent(self) -> float:
+        """Diagonal of the medium box: the length scale for relative epsilons."""
+        return float(np.linalg.norm(self.medium.bounds_max - self.medium.bounds_min))
+
+    def surfaces_near_boundary(self, margin: float):
+        """(lo, hi): the bounding box of every non-null surface whose bounding
+        box comes within ``margin`` of the medium box's boundary (inside or
+        outside it), or None if none does; computed once per ``margin``.
+
+        Shadow rays are traced in pieces that stop short of the box
+        (:func:`~integrators.core.light_transport.box_segments`): only such a
+        surface can hide in the gaps around a box crossing."""
+        cache = self.__dict__.setdefault("_near_boundary", {})
+        if margin not in cache:
+            lo = self.medium.bounds_min - margin
+            hi = self.medium.bounds_max + margin
+            ilo = self.medium.bounds_min + margin
+            ihi = self.medium.bounds_max - margin
+            near = []
+            for shape in self.scene.shapes() if self.scene is not None else []:
+                bsdf = shape.bsdf()
+                if bsdf is not None and mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
+                    continue
+                box = shape.bbox()
+                smin, smax = _vec(box.min), _vec(box.max)
+                touches = np.all(smax >= lo) and np.all(smin <= hi)
+                inside = np.all(smin > ilo) and np.all(smax < ihi)
+                if touches and not inside:
+                    near.append((smin, smax))
+            cache[margin] = None if not near else (
+                np.min([a for a, _ in near], axis=0) - margin,
+                np.max([b for _, b in near], axis=0) + margin)
+        return cache[margin]
+
+    @staticmethod
+    def from_scene(scene, sensor=None) -> "SceneParams":
+        if sensor is None or isinstance(sensor, int):
+            sensors = scene.sensors()
+            if not sensors:
+                raise ValueError("The scene has no sensor: add a <sensor type=\"perspective\">.")
+            sensor = sensors[sensor or 0]
+        camera = read_camera(sensor)
+        medium = read_medium(scene, sensor)
+        if not medium.contains(camera.origin):
+            raise ValueError(
+                f"The camera at {camera.origin.tolist()} lies outside the medium box "
+                f"[{medium.bounds_min.tolist()}, {medium.bounds_max.tolist()}] although "
+                "the medium is attached to the sensor: enlarge the boundary cube so it "
+                "encloses the camera.")
+        light = read_light(scene)
+        return SceneParams(camera=camera, medium=medium, light=light,
+                           scene=scene, sensor=sensor)
+
+
+# ---------------------------------------------------------------------------
+def read_camera(sensor) -> CameraParams:
+    if sensor.class_name() != "PerspectiveCamera":
+        raise ValueError(
+            f"Sensor {_name(sensor)} is not supported: episcatter renders with a "
+            "pinhole <sensor type=\"perspective\"> only (no thin lens, orthographic "
+            "or other sensors).")
+    film = sensor.film()
+    size, crop_size = np.array(film.size()), np.array(film.crop_size())
+    if np.any(size != crop_size) or np.any(np.array(film.crop_offset()) != 0):
+        raise ValueError(f"Film {_name(film)} has a crop window: render the full "
+                         "film (remove crop_width/crop_height/crop_offset_*).")
+    if film.rfilter().class_name() != "BoxFilter":
+        warnings.warn(
+            f"Film {_name(film)} uses a {film.rfilter().class_name()}: episcatter "
+            "integrators always use a box pixel filter; add <rfilter type=\"box\"/> "
+            "so volpath references match.", stacklevel=3)
+    cam = CameraParams.from_mitsuba(sensor)
+    for v in (cam.origin, cam.forward, cam.x_axis, cam.y_axis):
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"Sensor {_name(sensor)} has a non-finite transform or fov.")
+    return cam
+
+
+def read_medium(scene, sensor) -> MediumParams:
+    med = sensor.get_medium()
+    if med is None:
+        raise ValueError(
+            f"Sensor {_name(sensor)} has no medium: episcatter renders single "
+            "scattering in the medium the camera sits in. Put "
+            "<ref id=\"your_medium\"/> inside the <sensor> and bound the medium "
+            "with a null-BSDF <shape type=\"cube\"> whose interior is that medium.")
+    if med.class_name() != "HomogeneousMedium" or not med.is_homogeneous():
+        raise ValueError(
+            f"Medium {_name(med)} is not supported: only <medium "
+            "type=\"homogeneous\"> (constant sigma_t and albedo) can be rendered.")
+    scale = float(_param(med, "scale"))
+    sigma_t = _vec(_param(med, "sigma_t.value.value", "sigma_t.value")) * scale
+    albedo = _vec(_param(med, "albedo.value.value", "albedo.value"))
+    _check_finite_nonneg(f"Medium {_name(med)}: sigma_t*scale", sigma_t,
+                         "set sigma_t and scale to finite values >= 0.")
+    _check_finite_nonneg(f"Medium {_name(med)}: albedo", albedo,
+                         "set albedo to a value in [0, 1].")
+    if np.any(albedo > 1):
+        raise ValueError(f"Medium {_name(med)}: albedo {albedo.tolist()} exceeds 1: "
+                         "set albedo to a value in [0, 1].")
+    phase = med.phase_function()
+    kind = _check_phase(phase, med)
+    bmin, bmax = _read_boundary(scene, med)
+    return MediumParams(sigma_t=sigma_t, albedo=albedo, phase_kind=kind,
+                        bounds_min=bmin, bounds_max=bmax, phase=phase, medium=med)
+
+
+def _check_phase(phase, med) -> str:
+    cls = phase.class_name()
+    if cls not in SUPPORTED_PHASES:
+        raise ValueError(
+            f"Medium {_name(med)} uses phase function {cls}, which is not "
+            f"supported: use one of {sorted(SUPPORTED_PHASES.values())}.")
+    params = mi.traverse(phase)
+    for key in params.keys():
+        val = np.array(params[key], dtype=np.float64).reshape(-1)
+        if key.endswith(".g") or key == "g":
+            if not np.all(np.isfinite(val)) or np.any(np.abs(val) >= 1):
+                raise ValueError(f"Medium {_name(med)}: HG asymmetry g = {val.tolist()} "
+                                 "must be finite and inside (-1, 1).")
+        if "weight" in key and (not np.all(np.isfinite(val)) or np.any(val < 0) or np.any(val > 1)):
+            raise ValueError(f"Medium {_name(med)}: blendphase weight {val.tolist()} "
+                             "must be in [0, 1].")
+    return SUPPORTED_PHASES[cls]
+
+
+def _same(a, b) -> bool:
+    return a is not None and b is not None and a.ptr == b.ptr
+
+
+def _read_boundary(scene, med):
+    boundary = [s for s in scene.shapes() if _same(s.interior_medium(), med)]
+    fix = ("bound the medium with exactly one axis-aligned <shape type=\"cube\"> "
+           "(translate/scale only) with <bsdf type=\"null\"/> and "
+           "<ref name=\"interior\" id=\"...\"/>, enclosing the camera and the scene.")
+    if not boundary:
+        raise ValueError(f"Medium {_name(med)} has no boundary shape: {fix}")
+    if len(boundary) > 1:
+        names = ", ".join(_name(s) for s in boundary)
+        raise ValueError(f"Medium {_name(med)} has {len(boundary)} boundary shapes ({names}): {fix}")
+    shape = boundary[0]
+    bsdf = shape.bsdf()
+    if bsdf is None or not mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null) or \
+            bsdf.class_name() not in ("Null", "NullBSDF"):
+        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} must have "
+                         f"<bsdf type=\"null\"/>: {fix}")
+    bbox = shape.bbox()
+    bmin, bmax = _vec(bbox.min), _vec(bbox.max)
+    if not (np.all(np.isfinite(bmin)) and np.all(np.isfinite(bmax)) and np.all(bmax > bmin)):
+        raise ValueError(f"Boundary {_name(shape)} has a degenerate bounding box: {fix}")
+    if shape.is_mesh():
+        pos = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+        tol = 1e-4 * float(np.max(bmax - bmin))
+        on_corner = np.all((np.abs(pos - bmin) < tol) | (np.abs(pos - bmax) < tol), axis=1)
+        if not np.all(on_corner):
+            raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is not an "
+                             f"axis-aligned box: {fix}")
+    else:
+        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is not a box: {fix}")
+    return bmin, bmax
+
+
+def read_light(scene) -> LightParams:
+    emitters = list(scene.emitters())
+    if scene.environment() is not None and all(e is not scene.environment() for e in emitters):
+        emitters.append(scene.environment())
+    fix = ("use exactly one <emitter> of type directional, point or spot "
+           "(no area lights, environment maps or constant backgrounds).")
+    if len(emitters) != 1:
+        names = ", ".join(_name(e) for e in emitters) or "none"
+        raise ValueError(f"The scene has {len(emitters)} emitters ({names}): {fix}")
+    em = emitters[0]
+    cls = em.class_name()
+    if cls not in SUPPORTED_EMITTERS:
+        raise ValueError(f"Emitter {_name(em)} is not supported: {fix}")
+    kind = SUPPORTED_EMITTERS[cls]
+    params = mi.traverse(em)
+    if kind == "directional":
+        radiance = _vec(params["irradiance.value"])
+        to_world = np.array(params["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        d = to_world[:3, :3] @ np.array([0.0, 0.0, 1.0])   # propagation direction
+        n = np.linalg.norm(d)
+        if not np.isfinite(n) or n == 0:
+            raise ValueError(f"Emitter {_name(em)}: direction is zero or not finite.")
+        light = LightParams(kind=kind, radiance=radiance, direction=-d / n, emitter=em)
+    elif kind == "point":
+        radiance = _vec(params["intensity.value"])
+        light = LightParams(kind=kind, radiance=radiance,
+                            position=_vec(params["position"]), emitter=em)
+    else:
+        radiance = _vec(params["intensity.value"])
+        to_world = np.array(params["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        axis = to_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        cutoff = float(np.array(params["cutoff_angle"]).reshape(-1)[0])
+        beam = float(np.array(params["beam_width"]).reshape(-1)[0])
+        if not (np.isfinite(cutoff) and 0 < cutoff <= 90):
+            raise ValueError(f"Emitter {_name(em)}: cutoff_angle {cutoff} must be in (0, 90] degrees.")
+        # Mitsuba lists a uniform ``texture.value`` for a spot light without
+        # a texture; only other ``texture.*`` parameters mean a projected one
+        textured = any(k.startswith("texture.") and k != "texture.value" for k in params.keys())
+        light = LightParams(kind=kind, radiance=radiance, position=to_world[:3, 3].copy(),
+                            spot_axis=axis / np.linalg.norm(axis), cutoff_angle=cutoff,
+                            beam_width=beam, textured=textured, emitter=em)
+    label = "irradiance" if kind == "directional" else "intensity"
+    _check_finite_nonneg(f"Emitter {_name(em)}: {label}", light.radiance,
+                         f"set {label} to finite values >= 0.")
+    if light.position is not None and not np.all(np.isfinite(light.position)):
+        raise ValueError(f"Emitter {_name(em)}: position is not finite.")
+    if not math.isfinite(float(np.sum(light.radiance))):
+        raise ValueError(f"Emitter {_name(em)}: radiance is not finite.")
+    return light

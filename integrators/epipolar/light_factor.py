@@ -1,0 +1,79 @@
+"""The light side of a directional light's light rays: the factor
+``L(γ) = e^{-σt h(α, γ)}`` of the light-side path through the medium box
+(Baran et al. 2010 §6, "textured light"; DESIGN §1).
+"""
+from __future__ import annotations
+
+import math
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.light_transport import scalar
+from .light_rays.directional import LIGHT_SIDE_RANGE, LightRays
+from .queries import EpipolarQueries
+
+
+def light_side_gains(sigma_t, path: mi.Float) -> list[float]:
+    """Per channel of extinction ``sigma_t``: e^{-σt·min(lowest, 0)}, at
+    most e^{c}, ``lowest`` the smallest finite light-side path length of
+    ``path`` (a directional light's h, :func:`row_reference`; a point
+    light's L − r_in): how much the light-side factor (e^{-σt h_ref}·L of
+    the kept light rays) amplifies the tree's absolute errors.  The
+    automatic SVD rank divides its tolerance by it."""
+    lowest = min(float(dr.min(dr.select(dr.isfinite(path), path, 0.0))[0]), 0.0)
+    return [math.exp(min(LIGHT_SIDE_RANGE, -float(st) * lowest))
+            for st in np.atleast_1d(np.asarray(sigma_t, np.float64))]
+
+
+# --------------------------------------------------------------------------
+# Light side (DESIGN §1, Baran §6 "textured light")
+# --------------------------------------------------------------------------
+
+def gray(sigma_t) -> bool:
+    s = np.asarray(sigma_t, np.float64)
+    return bool(np.all(s == s[0]))
+
+
+def light_side_extinction(sigma_t: float, path, ref=None):
+    """e^{-σt (path − ref)} per light ray (``ref`` None: 0) -- the light
+    side of the per-light-ray factor of both light kinds (directional:
+    path = h, ref = the row's h_ref; point/spot: path = L − r_in) -- and 0
+    where the path is not finite (the light ray misses the box: +inf, NaN)
+    or σt·path < −c (c = ``LIGHT_SIDE_RANGE``).  A light ray whose path is
+    negative (it leaves the box toward the light *behind* the eye) has a
+    factor above 1, but each of its points is at least |path| from the eye,
+    so it contributes at most e^{-σt |path|} of the unattenuated single
+    scattering: dropping those beyond c keeps every factor ≤ e^{c}
+    (:func:`row_reference`)."""
+    rel = path if ref is None else path - ref
+    st = scalar(sigma_t)
+    return dr.select(dr.isfinite(rel) & (-st * path <= LIGHT_SIDE_RANGE), dr.exp(-st * rel), 0.0)
+
+
+def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:
+    """The per-light-ray factor as the sweep takes it: (n, d) for one
+    channel, (n, d, C) for C, from C Floats of n·d light rays."""
+    if len(values) == 1:
+        return mi.TensorXf(values[0], shape=(n, d))
+    C = len(values)
+    out = dr.zeros(mi.Float, n * d * C)
+    lane = dr.arange(mi.UInt32, n * d)
+    for c, v in enumerate(values):
+        dr.scatter(out, v, lane * C + c)
+    return mi.TensorXf(out, shape=(n, d, C))
+
+
+def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
+    """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} at every light ray's centre:
+    (n, d) if σt is grey, else (n, d, 3).  Relative to the row's h_ref so
+    that thick media stay inside float32's range; the factor e^{-σt h_ref}
+    is applied per query (:func:`directional_query_terms`).  Light rays
+    with σt·h < −c are 0 (:func:`light_side_extinction`); so
+    e^{-σt h_ref}·L ≤ e^{c} everywhere."""
+    s, _, _ = rays.lanes()
+    h_ref = dr.gather(mi.Float, rays.h_ref, s)
+    sigma_t = params.medium.sigma_t
+    channels = [0] if gray(sigma_t) else [0, 1, 2]
+    return light_ray_channels([light_side_extinction(sigma_t[c], rays.h, h_ref)
+                               for c in channels], queries.n, rays.d)

@@ -1,0 +1,81 @@
+"""The light side of a point or spot light's light rays: intensity,
+projected texture and the light-side transmittance of each light ray
+(Baran et al. 2010 §9).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.light_transport import point, sample_light, scalar, vector
+from .blockers import sub_ray_gamma
+from .light_factor import gray, light_ray_channels, light_side_extinction
+from .light_rays.local import LocalLightRays, light_ray_direction
+from .queries import EpipolarQueries
+
+
+def light_intensity(params, frame, w) -> mi.Color3f:
+    """Mitsuba's intensity toward unit directions ``w`` from the light (spot
+    fall-off and texture included): the delivered radiance at distance ``L``
+    times ``L²``."""
+    ell = float(frame.light_distance)
+    _, _, spec = sample_light(params, point(frame.light_position) + w * scalar(ell))
+    return spec * scalar(ell * ell)
+
+
+def projects_texture(params) -> bool:
+    """Whether the light is a spot light with a projected ``texture``."""
+    return params.light.kind == "spot" and params.light.textured
+
+
+def _channels(params) -> int:
+    """Colour channels of the per-light-ray factor: 1 for an untextured light
+    in a grey medium (its colour is then a per-query factor), else 3."""
+    return 1 if (not projects_texture(params) and gray(params.medium.sigma_t)) else 3
+
+
+def _light_colour(params, frame) -> mi.Color3f:
+    """The intensity along the spot axis (fall-off 1), or of the point light."""
+    axis = params.light.spot_axis if params.light.kind == "spot" else frame.axis
+    return light_intensity(params, frame, vector(axis))
+
+
+def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int = 1,
+                     seed: int = 0):
+    """(L, colour, lit): the tree's per-light-ray factor (§6 textured light)
+
+        L(α, γ) = Ī(α, γ) · e^{-σt (L − r_in(α, γ))}
+
+    (n, d) or (n, d, 3) (:func:`_channels`), Ī the intensity averaged over
+    the ``k`` sub-rays of :func:`~integrators.epipolar.blockers.sub_ray_gamma`
+    (same ``seed``: the blockers' sub-rays; prefilters the texture and the
+    cone's edge); ``colour``: the light's intensity along its axis when L
+    is grey (L then holds the fall-off alone), else 1; ``lit`` (n·d·k,):
+    existing sub-rays carrying light."""
+    frame = queries.frame
+    s, gamma = sub_ray_gamma(rays, k, seed)
+    idx = dr.compress(rays.used(k))           # sub-rays of existing light rays
+    w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, dr.gather(mi.UInt32, s, idx)),
+                            dr.gather(mi.Float, gamma, idx))
+    I = light_intensity(params, frame, w)
+    lit = dr.zeros(mi.Bool, dr.width(s))
+    dr.scatter(lit, dr.max(I) > 0, idx)
+    n_rays = queries.n * rays.d
+    I_sum = dr.zeros(mi.Color3f, n_rays)
+    dr.scatter_reduce(dr.ReduceOp.Add, I_sum, I, idx // k)
+    I_mean = I_sum * (1.0 / k)
+    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+    depth = scalar(frame.light_distance) - rays.r_in
+    if _channels(params) == 1:
+        colour = _light_colour(params, frame)
+        intensity = np.array([float(colour[i][0]) for i in range(3)])
+        c = int(np.argmax(intensity))
+        scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
+        values = [I_mean[c] * scalar(scale) * light_side_extinction(sigma_t[0], depth)]
+    else:
+        values = [I_mean[ch] * light_side_extinction(sigma_t[ch], depth) for ch in range(3)]
+        colour = mi.Color3f(1.0)
+    L = light_ray_channels(values, queries.n, rays.d)
+    dr.eval(L.array, lit)
+    return L, colour, lit

@@ -1,0 +1,398 @@
+"""The rectified shadow map of the ``fourier_filter`` method (Klehm et al. 2014, §2.2, §3).
+
+Builds on the epipolar rectification of :mod:`integrators.epipolar.queries`
+(queries = camera samples at their own β and depth, ``d`` light rays per
+slice, blocker angles β_b per light ray) and feeds the Fourier prefilter of
+:mod:`integrators.fourier.basis`.
+
+Rows, texels and depths
+-----------------------
+Row = epipolar slice α (one row per slice with queries); texel ``g`` = light
+ray ``g`` of the row, covering ``γ ∈ γ_lo + [g, g+1)·Δγ`` (γ: the distance
+from the camera-light axis for a directional light, ``γ_lo = 0``; the angle
+at the light for a point or spot light, Baran §9, ``γ_lo`` the start of a
+spot light's cone in the slice).  The depth that is
+constant along a view ray is its angle β to the light (Baran's rectification,
+Klehm §2.2 "z denotes the angle spanned by the view-ray direction and the
+light direction"): view ray β is shadowed on light ray γ iff ``β > β_b(γ)``,
+i.e. ``V = 1`` iff ``z_r ≤ z_i``, the shadow test of Eq. 5 with
+``z_r = z(β_query)`` and ``z_i = z(β_b(γ_i))`` for any increasing ``z``.
+
+``depth_range`` picks ``z`` (both map into [0, 1] as Eq. 8 requires):
+
+``slice`` (default, beyond the paper)
+    Per row, the β range ``[β_lo, β_hi]`` of the row's queries is mapped
+    onto ``[0, 1/2]``: ``z = (β − β_lo) / (2 (β_hi − β_lo))``.  Texels whose
+    blocker lies outside that range have the same visibility for every
+    query of the row: ``β_b ≥ β_hi`` *lit* (nothing, or a blocker behind all
+    view rays), ``β_b < β_lo`` *shadowed*.  They are summed exactly (plain
+    prefix sums) instead of through the truncated series; only the *series*
+    texels, ``β_lo ≤ β_b < β_hi``, are prefiltered.  The half range keeps
+    every ``z_r − z_i`` inside ``(−1/2, 1/2]``: no period-2 wrap-around
+    (:mod:`integrators.fourier.basis` module doc), and the whole resolution
+    of the ``M`` coefficients is spent on the row's own view rays.
+``full`` (the straightforward mapping)
+    ``z = β / π`` for every texel and query; every texel of a row with any
+    blocker in view goes through the series (Eqs. 8-10 as published, with
+    the angle range of all possible view rays as the depth range).
+
+Either way, rows with no series texel (nothing blocks inside the view) take
+the closed form and skip the filter.  Non-series texels get weight 0 in the
+filter and the depth of the row's nearest series texel (so that the
+per-region bounds of ``exact_bounds``/``fit_depth`` only see series texels).
+
+Coverage
+--------
+A query with fractional depth ``D = γ_end/Δγ``
+(:func:`~integrators.epipolar.light_rays.directional.rectified_depth`) covers ``clip(D − g, 0, 1)``
+of texel ``g`` (:mod:`integrators.tree.partial_sum_tree` convention);
+``Σ_g w_g clip(D − g, 0, 1)`` is one exclusive per-row prefix sum plus a
+fraction of the next texel (:class:`Coverage`).  In
+:func:`~integrators.fourier.prefilter.filtered_visibility`'s texel coordinate
+the same coverage is ``j = D − 1`` (texel-centre convention; ``D < 1``
+clamps to texel 0, which changes the weight sum, not the average).
+
+Projective rectification (Klehm §4.2)
+-------------------------------------
+:class:`ProjectiveLightRays`: the rows of
+:func:`~rectify.projective.projective_rows` with texels equally spaced in
+1/x (:func:`~rectify.projective.projective_columns`), so texels are
+unequally wide.  Coverage uses the fractional texel index of
+:meth:`ProjectiveLightRays.query_depth` (the fraction linear in γ), the
+weights carry the integral over each texel (:func:`texel_integral`: Eq. 12
+with the map's own edges; :func:`texel_separated_kernel`), and the
+per-query terms (:func:`projective_query_terms`) divide by sin β only.
+NumPy oracles: :func:`query_depth_reference`,
+:func:`texel_integral_reference`, :func:`eq12_weights_reference` (Eq. 12
+as printed).
+
+Everything Dr.Jit on the active variant.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.opaque import Divisor, scalar_u32, two_or_more
+from ..epipolar.light_rays.directional import rectified_depth
+from ..epipolar.query_terms import cell_average
+from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
+from .projective_rays import ProjectiveLightRays
+
+
+DEPTH_RANGES = ("slice", "full")
+REFERENCES = ("bisectrix", "optimal")
+#: smallest β range of a row [rad] (rows whose queries share one β)
+MIN_SPAN = 1e-7
+
+
+# --------------------------------------------------------------------------
+# Per-row β range of the queries
+# --------------------------------------------------------------------------
+
+def query_beta_range(queries):
+    """(β_lo, β_hi) per row: the smallest and largest β of its queries."""
+    lo = dr.full(mi.Float, dr.inf, queries.n)
+    hi = dr.full(mi.Float, -dr.inf, queries.n)
+    dr.scatter_reduce(dr.ReduceOp.Min, lo, queries.beta, queries.row)
+    dr.scatter_reduce(dr.ReduceOp.Max, hi, queries.beta, queries.row)
+    return lo, hi
+
+
+def reference_angle(beta_lo, beta_hi, how: str = "bisectrix"):
+    """β_ref per row: the reference ray of Klehm §3.2.
+
+    Klehm picks the reference between the rays of smallest and largest
+    optical step per texel, ω_min and ω_max.  The paper's step
+    ``Δ = Δ_⊥ / k``, ``k = sin β``, counts the camera side only; here the
+    weight of light ray γ also holds the light-side transmittance
+    (DESIGN §1), the per-texel optical depth is ``σt Δγ tan(β/2)``, which
+    grows with β: ω_min and ω_max are the row's smallest and largest β.
+
+    ``bisectrix`` (the paper's general choice): ``(β_lo + β_hi)/2``.
+    ``optimal``: the paper's min-max argument (the worst ratio of the
+    reference's step to any ray's, both ways) applied to this rate:
+    ``tan(β_ref/2) = √(tan(β_lo/2) tan(β_hi/2))``.  It exists unless a view
+    ray is parallel to the light (rate 0 or ∞; excluded by the ring), else
+    the bisectrix is used.  For a point or spot light the per-texel optical
+    depth ``σt Δγ ∂(t + r)/∂γ = σt L Δγ tan(β/2) (1 + tan²(γ/2)) / (1 − x)²``
+    (``x = tan(β/2) tan(γ/2)``) is the same rate ``tan(β/2)`` next to the
+    eye (``x → 0``), where the transmittance decays fastest; the same
+    reference serves.
+    """
+    bisectrix = 0.5 * (beta_lo + beta_hi)
+    if how == "bisectrix":
+        return bisectrix
+    x = dr.sqrt(dr.tan(0.5 * beta_lo) * dr.tan(0.5 * beta_hi))
+    ok = (beta_lo > 0.0) & (beta_hi < math.pi) & dr.isfinite(x)
+    return dr.select(ok, 2.0 * dr.atan(x), bisectrix)
+
+
+# --------------------------------------------------------------------------
+# The rectified shadow map
+# --------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class RectifiedShadowMap:
+    """Depths and texel classes of the rows (module doc); (n·d) texel arrays
+    in (row, light ray) order, (Q,) query arrays."""
+    n: int
+    d: int
+    z: mi.Float          # (n·d) texel depth z_i seen by the filter
+    series: mi.Bool      # (n·d) texel goes through the Fourier series
+    lit: mi.Bool         # (n·d) texel lit for every query of its row (exact)
+    z_r: mi.Float        # (Q,) query depth
+    filtered: mi.Bool    # (n,) row has series texels
+    rows: mi.UInt32      # (nf,) the filtered rows
+    frow: mi.UInt32      # (n,) index of a filtered row in ``rows``
+
+    @property
+    def texel_row(self) -> mi.UInt32:
+        """(n·d) row of every texel."""
+        return _texel_rows(self.n, self.d)
+
+    @property
+    def n_filtered(self) -> int:
+        return dr.width(self.rows)
+
+    def z_rows(self) -> mi.TensorXf:
+        """(nf, d) depths of the filtered rows (:meth:`gather_rows`)."""
+        return self.gather_rows(self.z)
+
+    def gather_rows(self, texel_values) -> mi.TensorXf:
+        """(nf, d) tensor of a texel array restricted to the filtered rows
+        (a single filtered row twice, nf = 2: :func:`~integrators.core.opaque.two_or_more`;
+        ``frow`` names the first)."""
+        d, d_o = self.d, Divisor(self.d)
+        rows = two_or_more(self.rows)
+        nf = dr.width(rows)
+        row, col = d_o.divmod(dr.arange(mi.UInt32, nf * d))
+        src = dr.gather(mi.UInt32, rows, row) * d_o.d + col
+        return mi.TensorXf(dr.gather(mi.Float, texel_values, src), shape=(nf, d))
+
+
+def _texel_rows(n: int, d: int) -> mi.UInt32:
+    return Divisor(d).div(dr.arange(mi.UInt32, n * d))
+
+
+def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> RectifiedShadowMap:
+    """The rectified shadow map of the rows (module doc) from the blocker
+    angles ``beta_b`` (n·d, one per light ray, π = unblocked) of
+    :func:`~integrators.epipolar.blockers.trace_blocker_angles`."""
+    if depth_range not in DEPTH_RANGES:
+        raise ValueError(f"depth_range '{depth_range}' is not one of {list(DEPTH_RANGES)}.")
+    n, d = queries.n, rays.d
+    s = _texel_rows(n, d)
+    lo, hi = query_beta_range(queries)
+    lo_t, hi_t = dr.gather(mi.Float, lo, s), dr.gather(mi.Float, hi, s)
+    in_view = beta_b < hi_t                     # shadows some query of the row
+    if depth_range == "slice":
+        span = dr.maximum(hi - lo, MIN_SPAN)
+        scale = 0.5 / span
+        series = in_view & (beta_b >= lo_t)
+        lit = ~in_view
+        z = (beta_b - lo_t) * dr.gather(mi.Float, scale, s)
+        z_r = (queries.beta - dr.gather(mi.Float, lo, queries.row)) * \
+            dr.gather(mi.Float, scale, queries.row)
+        z_r = dr.clip(z_r, 0.0, 0.5)
+    else:
+        blocked_row = _row_any(in_view, n, d)
+        series = dr.gather(mi.Bool, blocked_row, s)
+        lit = ~series
+        z = dr.minimum(beta_b, math.pi) * (1.0 / math.pi)
+        z_r = queries.beta * (1.0 / math.pi)
+    filtered = _row_any(series, n, d)
+    z = _fill_non_series(z, series, n, d)
+    rows = dr.compress(filtered)
+    frow = dr.prefix_sum(dr.select(filtered, mi.UInt32(1), mi.UInt32(0)))   # exclusive
+    smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow)
+    dr.eval(smap.z, smap.series, smap.lit, smap.z_r, smap.filtered, smap.frow)
+    return smap
+
+
+def _row_any(mask, n: int, d: int) -> mi.Bool:
+    count = dr.block_reduce(dr.ReduceOp.Add, dr.select(mask, mi.UInt32(1), mi.UInt32(0)), d)
+    return count > 0
+
+
+def _fill_non_series(z, series, n: int, d: int) -> mi.Float:
+    """Non-series texels take the row's smallest series depth (0 if none)."""
+    z_min = dr.block_reduce(dr.ReduceOp.Min, dr.select(series, z, dr.inf), d)
+    z_min = dr.select(dr.isfinite(z_min), z_min, 0.0)
+    return dr.select(series, z, dr.gather(mi.Float, z_min, _texel_rows(n, d)))
+
+
+# --------------------------------------------------------------------------
+# Coverage sums Σ_g w_g clip(D − g, 0, 1)
+# --------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class Coverage:
+    """Where each query's depth D cuts its row (module doc, "Coverage")."""
+    d: int
+    texel: mi.UInt32     # (Q,) flat index of texel k0 = min(⌊D⌋, d − 1)
+    frac: mi.Float       # (Q,) covered part of texel k0, D − k0 ∈ [0, 1]
+    j: mi.Float          # (Q,) D − 1: filtered_visibility's texel coordinate
+
+    @staticmethod
+    def of(queries, rays) -> "Coverage":
+        d, d_o = rays.d, scalar_u32(rays.d)
+        if isinstance(rays, ProjectiveLightRays):
+            D = rays.query_depth(queries)
+        else:
+            D = dr.gather(mi.Float, rectified_depth(queries, rays).array, queries.slot)
+        D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, mi.Float(d_o))
+        k0 = dr.minimum(mi.UInt32(D), d_o - 1)
+        return Coverage(d, queries.row * d_o + k0, D - mi.Float(k0), D - 1.0)
+
+    def sum(self, w) -> mi.Float:
+        """Σ_g w_g clip(D − g, 0, 1) per query, ``w`` an (n·d) texel array."""
+        P = dr.block_prefix_sum(w, self.d, exclusive=True)
+        return dr.gather(mi.Float, P, self.texel) + self.frac * dr.gather(mi.Float, w, self.texel)
+
+
+# --------------------------------------------------------------------------
+# The filter over the rows (§3.3)
+# --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """Options of :func:`~integrators.fourier.prefilter.prefix_filter` and
+    :func:`~integrators.fourier.prefilter.filtered_visibility`."""
+    M: int = 32
+    regions: int = 1
+    fit_depth: bool = False
+    exact_bounds: bool = True
+
+
+def prefilter_rows(smap: RectifiedShadowMap, w, opt: FilterSettings) -> FilteredBasis | None:
+    """Filtered-basis textures of the filtered rows with texel weights ``w``
+    (n·d, ≥ 0; zeroed outside the series texels) (Listings 2-3)."""
+    if smap.n_filtered == 0:
+        return None
+    weights = smap.gather_rows(dr.select(smap.series, w, 0.0))
+    return prefix_filter(smap.z_rows(), weights, opt.M, opt.regions, opt.fit_depth)
+
+
+def series_visibility(smap: RectifiedShadowMap, fb: FilteredBasis | None, queries,
+                      cover: Coverage, opt: FilterSettings, clamp: bool, band: float = 0.0):
+    """Weighted average visibility of each query over the series texels in
+    front of its depth (Listing 4); 1 in rows without series texels.
+    ``band`` > 0: ``(V, drop)``, also the drop of the average across the
+    query's depth ± ``band`` (:func:`~integrators.fourier.prefilter.filtered_visibility`)."""
+    if fb is None:
+        ones = dr.full(mi.Float, 1.0, queries.count)
+        return ones if band <= 0.0 else (ones, dr.zeros(mi.Float, queries.count))
+    active = dr.gather(mi.Bool, smap.filtered, queries.row)
+    frow = dr.gather(mi.UInt32, smap.frow, queries.row)
+    frow = dr.select(active, frow, 0)
+    return filtered_visibility(fb, frow, cover.j, smap.z_r, clamp, opt.exact_bounds, active,
+                               band)
+
+
+# --------------------------------------------------------------------------
+# Where the series is no estimate: the step blurred over the query's own weight
+# --------------------------------------------------------------------------
+
+#: half-width of the band around a query's depth, in units of 1/M of the
+#: [0, 1] depth range, in which the truncated series blurs the step: its
+#: Gibbs peak lies 1/M from the step (:mod:`integrators.fourier.basis`)
+NEAR_BAND = 2.0
+#: a query whose series texels within the band weigh more than this
+#: fraction of its shadowed sum ...
+NEAR_TOLERANCE = 2.0
+#: ... and more than this fraction of its unshadowed sum takes the exact sum
+NEAR_FLOOR = 1e-4
+
+
+def near_band(M: int) -> float:
+    """The band half-width in depth units for ``M`` coefficients."""
+    return NEAR_BAND / M
+
+
+def near_step_weight(series, drop) -> mi.Float:
+    """Σ w of the series texels in front of each query's depth whose depth
+    lies within the band around the query's (about): their weight sum
+    ``series`` (:func:`class_sums`) times the ``drop`` of the filtered
+    average across the band."""
+    return series * dr.maximum(drop, 0.0)
+
+
+def series_unreliable(near, S, P) -> mi.Bool:
+    """(Q,) queries whose filtered sum ``S`` is mostly the blurred step:
+    the near-step weight ``near`` above ``NEAR_TOLERANCE`` of ``S`` and
+    above ``NEAR_FLOOR`` of the unshadowed weight ``P``.  Receivers right
+    behind their blockers -- fog in front of a surface seen from its
+    shadowed side, a view ray grazing an occluder -- read up to half the
+    weight of those texels as light that is not there (a point
+    light inside a closed box, random stress seed 43, 1.3e-2 of the
+    unoccluded peak where the exact answer is 0)."""
+    return (near > NEAR_TOLERANCE * S) & (near > NEAR_FLOOR * P)
+
+
+def series_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:
+    """Σ over the series texels of w_g V(g, β_q) clip(D − g, 0, 1): their
+    weight sum times the filtered average ``V_series``."""
+    return cover.sum(dr.select(smap.series, w, 0.0)) * V_series
+
+
+def class_sums(smap: RectifiedShadowMap, cover: Coverage, w):
+    """(Σ_lit, Σ_series) of w_g clip(D − g, 0, 1) per query: the covered
+    weight of the lit texels and of the series texels (the shadowed sum
+    is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`)."""
+    return (cover.sum(dr.select(smap.lit, w, 0.0)),
+            cover.sum(dr.select(smap.series, w, 0.0)))
+
+
+def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:
+    """Σ_g w_g V(g, β_q) clip(D − g, 0, 1) per query: the lit texels
+    exactly, the series texels through the filter (:func:`series_sum`)."""
+    return cover.sum(dr.select(smap.lit, w, 0.0)) + series_sum(smap, cover, w, V_series)
+
+
+# -- texel integrals of the kernel (Eq. 12) --
+
+def texel_integral(gamma_lo, width, c):
+    """∫ e^{-c γ} dγ over the texel [γ_lo, γ_lo + width]:
+    ``e^{-c γ_lo} · width · φ(c · width)`` (φ:
+    :func:`~integrators.epipolar.query_terms.cell_average`, stable for c → 0).
+
+    With c = σt (1 − cos β)/sin β = σt tan(β/2) (the joined camera- and
+    light-side decay of a directional light per unit γ) this is, times
+    σt/sin β, Klehm's Eq. 12 weight σt ∫_texel T dt =
+    T(start)·(1 − T(across)) of the texel along the reference ray; here
+    the texel edges come from the projective map itself (any spacing)
+    instead of Eq. 12's geometric progression (:func:`eq12_weights_reference`)."""
+    return dr.exp(-c * gamma_lo) * width * cell_average(c * width)
+
+
+def texel_integral_reference(gamma_lo, width, c) -> np.ndarray:
+    """NumPy oracle of :func:`texel_integral` (float64, the difference of
+    the antiderivative)."""
+    g0, w, c = (np.asarray(v, np.float64) for v in (gamma_lo, width, c))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        exact = (np.exp(-c * g0) - np.exp(-c * (g0 + w))) / c
+    return np.where(c * w < 1e-12, np.exp(-c * g0) * w, exact)
+
+
+def eq12_weights_reference(delta: float, ratio: float, sigma_t: float, n: int) -> np.ndarray:
+    """Klehm's Eq. 12 as printed: ``w'_i = e^{-Δσt Σ_{j=1}^{i-1} d^{j-1}}
+    (1 − e^{-Δσt d^{i-1}})``, i = 1..n -- texel i spanning Δ·d^{i-1} along
+    the ray (a geometric progression of ratio ``d``, estimated by Klehm
+    from the first three texel centres).  The projective map's texels are
+    a geometric progression only approximately (the map preserves the cross
+    ratio, not the ratio of neighbouring lengths); :func:`texel_integral`
+    uses the exact edges."""
+    lengths = delta * float(ratio) ** np.arange(n)
+    starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
+    return np.exp(-sigma_t * starts) * -np.expm1(-sigma_t * lengths)
+
+
+def eq12_ratio_reference(t_centres) -> float:
+    """Klehm's factor d from the first three texel centres along a ray:
+    the ratio of the distances between them, (t_2 − t_1)/(t_1 − t_0)."""
+    t = np.asarray(t_centres, np.float64)
+    return float((t[2] - t[1]) / (t[1] - t[0]))

@@ -1,0 +1,210 @@
+"""Several reference rays per row: transmittance weights that stay right in
+thick media (``fourier_filter``, beyond Klehm et al. 2014 §3.2).
+
+Klehm's §3.2 weights every texel of a row by the transmittance kernel of
+*one* reference ray, ``K(γ, β_ref)``, and takes the weighted average
+visibility V̄ for every view ray of the row.  The weighting is right only
+where the query's own kernel ``K(γ, β)`` is proportional to it.  For a
+directional light ``K = e^{-c γ}``, ``c = σt tan(β/2)``: two view rays of
+one row differ by ``e^{-(c − c_ref) γ}``, which across the row's texels
+(``γ ∈ [0, ℓ]``) is ``e^{-Δc ℓ}`` -- order one as soon as the medium is a
+few mean free paths thick, and then V̄ is the visibility of the wrong
+texels (energy lost or gained by whole factors).
+
+The remedy here: ``K`` reference rays per row at angles β_k spread over the
+row's β range, one filter each, and every query interpolates linearly
+between the two nearest ones: its weights are
+
+    w(γ) ≈ (1 − f) L K(γ, β_k) + f L K(γ, β_{k+1}),
+
+non-negative (a convex combination of two reference rays' weights, so each
+filter is a proper weighted average that the series and its clamp handle
+as Klehm's), and the query's weighted sum is the same mix of the two
+filters' weighted sums.  The rays are equally spaced in the decay
+coordinate ``s(β) = log(1 + σt tan(β/2) ℓ)``: for ``c ℓ ≪ 1`` it is the
+optical depth ``c ℓ`` itself (the kernel is nearly flat and one interval
+serves), for ``c ℓ ≫ 1`` it is ``log c`` (a fixed *ratio* of decay rates per
+interval, which bounds the relative error of the interpolated weights
+wherever they matter, within about ``1/c`` of the eye).  The unshadowed
+sum U(β) stays the query's own exact one; only the weighting of its
+visibility is interpolated.
+
+Point and spot lights (Baran §9): the same coordinate with ``tan(β/2)``
+(the decay rate next to the eye, :func:`~integrators.fourier.rectified_map.reference_angle`)
+and ``ℓ`` the longest camera path; the interpolated kernel includes the
+phase function at the reference rays' scattering angles.
+
+NumPy oracle: :func:`interpolated_kernel_reference`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.opaque import scalar, scalar_u32
+from ..epipolar.light_models import light_model
+from .projective_rays import ProjectiveLightRays
+from .rectified_map import query_beta_range, texel_integral
+
+
+#: spacing of the reference rays in s = log(1 + σt tan(β/2) ℓ)
+SPACING = 0.3
+#: most reference rays per row of the automatic count
+MAX_REFERENCE_RAYS = 16
+
+
+def decay_coordinate(beta, sigma_t: float, length: float):
+    """s(β) = log(1 + σt tan(β/2) ℓ) (module doc), Dr.Jit or NumPy; in
+    Dr.Jit σt ℓ is a kernel parameter (opaque), not a literal."""
+    if isinstance(beta, np.ndarray) or np.isscalar(beta):
+        return np.log1p(sigma_t * length * np.tan(0.5 * np.asarray(beta, np.float64)))
+    return dr.log(1.0 + scalar(sigma_t * length) * dr.tan(0.5 * beta))
+
+
+def decay_angle(s, sigma_t: float, length: float):
+    """β(s), the inverse of :func:`decay_coordinate`; 1/(σt ℓ) is a kernel
+    parameter (opaque), rounded as Dr.Jit rounds a literal divisor (the
+    float32 reciprocal of the float32 value)."""
+    rate = np.float32(sigma_t * length)
+    return 2.0 * dr.atan((dr.exp(s) - 1.0) * scalar(np.float32(1.0) / rate))
+
+
+def auto_reference_rays(span, spacing: float = SPACING, max_rays: int = MAX_REFERENCE_RAYS):
+    """Reference rays of a row whose queries span ``span`` in s: one per
+    ``spacing`` plus the end, from 1 (Klehm's single ray) to ``max_rays``
+    (NumPy or Dr.Jit, per row)."""
+    if isinstance(span, (int, float, np.floating)):
+        return int(min(max_rays, max(1, math.ceil(span / spacing) + 1))) if span > 0 else 1
+    count = dr.ceil(span / spacing) + 1.0
+    return mi.UInt32(dr.select(span > 0.0, dr.clip(count, 1.0, float(max_rays)), 1.0))
+
+
+@dataclass(eq=False)
+class ReferenceRays:
+    """Up to ``count`` reference rays per row (row r has ``counts[r]``) and
+    every query's place among its row's."""
+    count: int            # the most of any row
+    counts: mi.UInt32     # (n,) reference rays of every row
+    beta: list            # ``count`` arrays (n,): β_k of every row (k < counts[r])
+    node: mi.UInt32       # (Q,) k: the query's lower reference ray
+    frac: mi.Float        # (Q,) f ∈ [0, 1]: its position toward ray k + 1
+
+    def share(self, k: int) -> mi.Float:
+        """(Q,) the weight of reference ray ``k`` in each query's mix
+        (``k`` a kernel parameter: every ray shares one kernel)."""
+        f, k = self.frac, scalar_u32(k)
+        return dr.select(self.node == k, 1.0 - f, dr.select(self.node + 1 == k, f, 0.0))
+
+    def rows_with(self, k: int) -> mi.Bool:
+        """(n,) the rows that have a reference ray ``k``."""
+        return self.counts > scalar_u32(k)
+
+
+def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
+                   spacing: float = SPACING) -> ReferenceRays:
+    """Reference rays equally spaced in s over each row's β range (module
+    doc); ``count`` = 0: :func:`auto_reference_rays` per row, else ``count``
+    in every row (1: the bisectrix, Klehm's).  σt ℓ ≈ 0 (no decay): the
+    rays are equally spaced in β.  σt, ℓ and ``k`` enter the kernels as
+    parameters; the most rays of any row (a read-back) is the Python loop
+    count of the filters."""
+    lo, hi = query_beta_range(queries)
+    rate = float(sigma_t) * float(length)
+    decays = rate > 1e-6
+    if decays:
+        s_lo, s_hi = (decay_coordinate(b, sigma_t, length) for b in (lo, hi))
+        s_q = decay_coordinate(queries.beta, sigma_t, length)
+    else:
+        s_lo, s_hi, s_q = lo, hi, queries.beta
+    span = dr.select(dr.isfinite(s_hi - s_lo), s_hi - s_lo, 0.0)
+    if count == 0:
+        counts = auto_reference_rays(span if decays else dr.zeros(mi.Float, dr.width(span)),
+                                     spacing)
+    else:
+        counts = dr.full(mi.UInt32, count, dr.width(span))
+    K = int(dr.max(counts)[0]) if dr.width(counts) else 1
+    last = mi.Float(dr.maximum(counts, 2) - 1)          # intervals of a row (≥ 1)
+    beta = []
+    for k in range(K):
+        s_k = dr.select(counts > 1, s_lo + span * (scalar(k) / last), s_lo + 0.5 * span)
+        b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
+        beta.append(dr.select(span > 0.0, b_k, lo))
+    span_q = dr.gather(mi.Float, span, queries.row)
+    last_q = dr.gather(mi.Float, last, queries.row)
+    u = dr.select(span_q > 0.0,
+                  (s_q - dr.gather(mi.Float, s_lo, queries.row)) / span_q * last_q, 0.0)
+    u = dr.clip(u, 0.0, last_q)
+    node = dr.minimum(mi.UInt32(u), mi.UInt32(last_q) - 1)
+    frac = dr.select(dr.gather(mi.UInt32, counts, queries.row) > 1, u - mi.Float(node), 0.0)
+    return ReferenceRays(K, counts, beta, node, frac)
+
+
+def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
+    """K(γ, β_ref) per light ray (n·d) for one reference angle per row
+    ``beta_ref`` (n,), the light side included (Klehm §3.2, Eq. 11).
+    Directional: e^{-σt γ_g tan(β_ref/2)} at the light ray's start γ_g
+    (equal light rays: the factor of the interval's mean is common to the
+    row).  Projective texels: the integral of that kernel over the texel,
+    Eq. 12 (:func:`~integrators.fourier.rectified_map.texel_integral`).
+    Point/spot: the mean over the light ray's interval of
+    e^{-σt (t + r − L)} f_p(β_ref + γ)
+    (:func:`~integrators.epipolar.kernel.local.local_kernel`): the phase
+    function of the reference ray at each light ray is the "angular
+    dependency" of §3.2, next to the light's own (intensity, fall-off,
+    texture) in L."""
+    tan_ref = dr.tan(0.5 * beta_ref)
+    s, gamma = rays.positions(0.0)
+    tan_ref = dr.gather(mi.Float, tan_ref, s)
+    if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
+        return texel_integral(gamma, rays.widths(), scalar(sigma_t) * tan_ref)
+    kernel = light_model(params).ray_kernel(params, queries, rays, sigma_t)
+    return kernel(dr.arange(mi.UInt32, dr.width(gamma)), tan_ref)
+
+
+def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:
+    """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
+    that ``weighted_sum(k, rows)`` returns: the shadowed and the unshadowed
+    weighted sums of reference ray k, and any further sums of its weights
+    (needed only in the ``rows`` that have one, :meth:`ReferenceRays.rows_with`).
+    The sums are evaluated one reference ray at a time: the same kernels
+    for any number of rays."""
+    out = None
+    for k in range(refs.count):
+        share = refs.share(k)
+        sums = weighted_sum(k, refs.rows_with(k))
+        if out is None:
+            out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+        out = [x + dr.select(share > 0.0, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+        dr.eval(out)
+    return tuple(out)
+
+
+def restrict_rows(smap, rows: mi.Bool):
+    """The rectified shadow map with only ``rows`` (n,) filtered (the
+    others' queries read visibility 1 from the series, their texels keep
+    their classes): a reference ray's filter runs over the rows that have it."""
+    filtered = smap.filtered & rows
+    frow = dr.prefix_sum(dr.select(filtered, mi.UInt32(1), mi.UInt32(0)))
+    return replace(smap, filtered=filtered, rows=dr.compress(filtered), frow=frow)
+
+
+def interpolated_kernel_reference(gamma, beta, beta_lo, beta_hi, sigma_t: float,
+                                  length: float, count: int) -> np.ndarray:
+    """NumPy oracle (float64) of the weights one query of a directional
+    row sees: the mix of the two nearest of ``count`` reference rays'
+    kernels e^{-σt γ tan(β_k/2)}, equally spaced in s over [β_lo, β_hi].
+    Returns the weights at ``gamma``."""
+    s_lo, s_hi = (decay_coordinate(b, sigma_t, length) for b in (beta_lo, beta_hi))
+    if count == 1:
+        return np.exp(-sigma_t * np.asarray(gamma) * np.tan(0.25 * (beta_lo + beta_hi)))
+    s_k = np.linspace(s_lo, s_hi, count)
+    b_k = 2.0 * np.arctan(np.expm1(s_k) / (sigma_t * length))
+    u = np.clip((decay_coordinate(beta, sigma_t, length) - s_lo) / (s_hi - s_lo) * (count - 1),
+                0.0, count - 1)
+    k = min(int(u), count - 2)
+    f = u - k
+    K = [np.exp(-sigma_t * np.asarray(gamma, np.float64) * np.tan(0.5 * b)) for b in b_k[k:k + 2]]
+    return (1.0 - f) * K[0] + f * K[1]

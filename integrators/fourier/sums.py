@@ -1,0 +1,129 @@
+"""The rectified sums of the filter: kernel parts per channel, the
+unshadowed band, the reference kernel and the near visibility
+(Klehm et al. 2014 §4).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.opaque import scalar_u32
+from ..epipolar.last_interval import LastInterval
+from ..epipolar.light_rays.directional import LightRays
+from .rectified_map import Coverage, query_beta_range, reference_angle
+from .references import row_kernel
+
+
+@dataclass(eq=False)
+class RectifiedSums:
+    """Per query and colour channel (1 or 3): U = Σ_γ L K cover (no
+    blockers) and the effective average visibility V̄ of the blockers;
+    ``colour``: a point/spot light's colour when L is grey
+    (:func:`~integrators.epipolar.local_light_factor.light_ray_factor`), else None."""
+    rays: LightRays
+    beta_b: mi.Float      # (n·d) blocker angle per light ray
+    U: list
+    V: list
+    colour: mi.Color3f | None = None
+
+    def integral(self) -> mi.Color3f:
+        """Σ_γ L K V cover = U · V̄ as a Color3f."""
+        values = [u * v for u, v in zip(self.U, self.V)]
+        return mi.Color3f(*(values * 3 if len(values) == 1 else values))
+
+
+def _channel_count(t: mi.TensorXf, axis: int) -> int:
+    return t.shape[axis] if len(t.shape) > axis else 1
+
+
+def channels(L: mi.TensorXf, A: mi.TensorXf | None, sigma_t) -> int:
+    """Colour channels the filters run for: 3 if the per-light-ray factor
+    L (n, d[, 3]) or the kernel A (n, d, C, N) is coloured (coloured σt, or
+    a textured spot light's colour per light ray), else 1; without a
+    separated kernel (A None, the direct sum) σt says whether it is coloured."""
+    kernel = A.shape[2] if A is not None else (1 if np.all(sigma_t == sigma_t[0]) else 3)
+    return max(_channel_count(L, 2), kernel)
+
+
+class KernelParts:
+    """One colour channel of the separated integrand: L (n·d) per light ray,
+    A_n (n·d) per light ray (directional: at its start; point/spot: its
+    interval's mean), B_n (Q) at every query's β."""
+
+    def __init__(self, L, A, B):
+        self.L, self.A, self.B = L, A, B
+
+    @staticmethod
+    def of(queries, rays, L, A, B, c: int) -> "KernelParts":
+        """Channel ``c`` of L and of A, B (a grey one serves every channel);
+        the rank's stride and the component's offset are kernel parameters,
+        so every component (of any rank) reads with the same kernels."""
+        lanes = dr.arange(mi.UInt32, queries.n * rays.d)
+        CL = _channel_count(L, 2)
+        L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
+        if A is None:             # the direct sum: no separated kernel
+            return KernelParts(L_c, [], [])
+        C, N = A.shape[2], A.shape[3]
+        c = min(c, C - 1)
+        stride = scalar_u32(C * N)
+        A_c, B_c = [], []
+        for i in range(N):
+            offset = scalar_u32(c * N + i)
+            b = dr.gather(mi.Float, B.array, queries.slot * stride + offset)
+            if dr.all(b == 0.0):        # unused component of this channel
+                continue
+            A_c.append(dr.gather(mi.Float, A.array, lanes * stride + offset))
+            B_c.append(b)
+        return KernelParts(L_c, A_c, B_c)
+
+    def unshadowed(self, cover: Coverage) -> mi.Float:
+        """U(β) = Σ_n B_n(β) Σ_γ L A_n cover: the query's sum without
+        blockers (the closed form of unblocked rows), accumulated one
+        evaluated component at a time: the same kernels for any rank."""
+        U = dr.zeros(mi.Float, dr.width(cover.frac))
+        for a, b in zip(self.A, self.B):
+            U += b * cover.sum(self.L * a)
+            dr.eval(U)
+        return U
+
+
+def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
+                    band_cells: int) -> mi.Color3f:
+    """What U (:meth:`KernelParts.unshadowed`, the banded separated kernel)
+    misses in each query's asymptote band: the light model's
+    ``band_correction`` (``epipolar_tree``'s, Baran §9's kernel near
+    β + γ = π) with every cell lit and the last one covered to the query's
+    depth (0: no band, or no separated kernel)."""
+    if A is None or not band_cells:
+        return dr.zeros(mi.Color3f, queries.count)
+    k0 = cover.texel - queries.row * scalar_u32(cover.d)
+    ones = dr.full(mi.Float, 1.0, queries.count)
+    last = LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+    return model.band_correction(params, queries, rays, A, B, L, None, last, band_cells)
+
+
+def row_shift(a, smap) -> mi.Float:
+    """c (n,): the smallest shift making a + c ≥ 0 on the row's series texels."""
+    lo = dr.block_reduce(dr.ReduceOp.Min, dr.select(smap.series, a, dr.inf), smap.d)
+    return dr.select(dr.isfinite(lo), dr.maximum(-lo, 0.0), 0.0)
+
+
+def reference_kernel(params, queries, rays, sigma_t: float, how: str) -> mi.Float:
+    """K(γ, β_ref) per light ray (n·d): the weights of the slice's reference
+    ray (§3.2, Eq. 11; the light side included), β_ref by
+    :func:`~integrators.fourier.rectified_map.reference_angle`; the kernel itself is
+    :func:`~integrators.fourier.references.row_kernel`."""
+    lo, hi = query_beta_range(queries)
+    return row_kernel(params, queries, rays, sigma_t, reference_angle(lo, hi, how))
+
+
+def near_visibility(queries, rays, beta_b) -> mi.Float:
+    """V of the first light ray at each query's β: the visibility the
+    rectified sum gives the view ray in front of the near plane
+    (:func:`~integrators.epipolar.query_terms.directional_query_terms`,
+    :func:`~integrators.epipolar.local_query_terms.local_query_terms`; a spot
+    light's first light ray is the first in its cone, as in epipolar_tree)."""
+    first = dr.gather(mi.Float, beta_b, queries.row * scalar_u32(rays.d))
+    return dr.select(queries.beta <= first, 1.0, 0.0)

@@ -1,0 +1,103 @@
+"""Bounded shadow volumes and the temporal change mask (Lin et al. §3;
+Wyman & Ramsey 2008 for the volumes).
+
+A camera sample's single scattering ``L_scat = ∫_0^d ... V(x(t)) dt``
+depends on the scene only through its segment ``[0, d]`` and the visibility
+``V`` of the points on it.  When an object moves between two frames (camera,
+light and medium fixed), ``V(x)`` can change only where the light ray from
+``x`` meets the object in one of the two frames, i.e. inside the object's
+*shadow volume* there; ``d`` changes only where the camera ray meets it.
+So a sample is *dirty* (must be recomputed) when its segment meets the
+shadow volume of a moving object in the previous or the current frame
+(which also catches every sample whose ``d`` changes, :func:`change_mask`);
+every other sample keeps its value exactly.
+
+The shadow volume is bounded conservatively: each object is covered by
+axis-aligned boxes (its bounding box, or the boxes of clusters of its
+triangles, :func:`shape_boxes`), and each box ``B`` is extruded away from
+the light to infinity:
+
+* directional light toward ``l``: ``SV(B) = {x : x + s·l ∈ B for some s ≥ 0}``;
+* point/spot light at ``p``: ``SV(B) = {p + λ(y − p) : y ∈ B, λ ≥ 1}``
+  (the spot cone is ignored: conservative).
+
+Both are convex polyhedra (the box's faces that face the light plus the
+supporting planes through the light and the box's silhouette edges;
+:func:`shadow_volume_planes`), so a camera segment meets one iff
+Cyrus–Beck clipping against its planes leaves a non-empty interval
+``[t0, t1]`` (:func:`clip_segments`, Dr.Jit, one kernel for any number of
+volumes).  A light inside a box makes that volume everything.  Every box is
+padded by ``PAD`` (relative to the medium box's diagonal) to absorb float
+rounding of the ray tests.
+
+:func:`change_mask_reference` is the slow, obvious NumPy twin: dense points
+along each segment, each tested by a slab test of its own light ray against
+the boxes.  :func:`whole_frame_changes` detects (never assumes) a moved
+camera, light or changed medium, which makes every sample dirty.
+"""
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+
+from ..core.shadow_volumes import Boxes, ShadowVolumes, clip_segments, in_shadow_volume_reference
+
+
+def change_mask(cap, volumes: ShadowVolumes) -> mi.Bool:
+    """Dirty camera samples (module doc) from the *previous* frame's capture
+    ``cap``: its segment ``[0, d_prev]`` meets one of ``volumes`` (the moving
+    objects' boxes in the previous and the current frame).  No new capture
+    is needed: if the current camera ray stops earlier, at a moving object,
+    that point lies on ``[0, d_prev]`` inside the object's current box; if
+    it stops later, the previous stop was on the object, inside its previous
+    box; otherwise the segment is the same."""
+    return clip_segments(volumes, cap.o, cap.omega, cap.d, first_hit=True)[0]
+
+
+# -- whole-frame changes -----------------------------------------------------------
+def frame_invariants(params) -> dict:
+    """What every sample depends on besides the occluders: camera, light and
+    medium parameters as NumPy arrays (compared by :func:`whole_frame_changes`)."""
+    cam, light, med = params.camera, params.light, params.medium
+    em = mi.traverse(light.emitter)
+    ph = mi.traverse(med.phase)
+    return {
+        "camera": np.concatenate([cam.origin, cam.forward, cam.x_axis, cam.y_axis,
+                                  [cam.width, cam.height, cam.near_clip]]),
+        "light": np.concatenate([np.ravel(np.array(em[k], dtype=np.float64)) for k in sorted(em.keys())
+                                 if _numeric(em[k])] + [[len(light.kind)]]),
+        "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max]
+                                 + [np.ravel(np.array(ph[k], dtype=np.float64))
+                                    for k in sorted(ph.keys()) if _numeric(ph[k])]),
+    }
+
+
+def _numeric(value) -> bool:
+    try:
+        np.array(value, dtype=np.float64)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def whole_frame_changes(previous: dict | None, current: dict) -> list[str]:
+    """Names (``camera``, ``light``, ``medium``) whose parameters differ
+    between two :func:`frame_invariants`; all of them for the first frame."""
+    if previous is None:
+        return sorted(current)
+    return [k for k in sorted(current)
+            if previous[k].shape != current[k].shape or not np.array_equal(previous[k], current[k])]
+
+
+def change_mask_reference(o, omega, d, boxes: Boxes, light, samples: int = 512) -> np.ndarray:
+    """Dense-sampling oracle of the shadow-volume part of :func:`change_mask`:
+    ``samples`` points on each segment ``o + t·ω``, ``t ∈ [0, d]`` (both ends
+    included), each tested by :func:`in_shadow_volume_reference`."""
+    o, omega, d = (np.asarray(v, dtype=np.float64) for v in (o, omega, d))
+    t = np.linspace(0.0, 1.0, samples)
+    out = np.zeros(len(d), dtype=bool)
+    for k in range(0, len(d), 256):
+        sl = slice(k, k + 256)
+        x = o[sl, None] + omega[sl, None] * (d[sl, None, None] * t[None, :, None])
+        out[sl] = in_shadow_volume_reference(x.reshape(-1, 3), boxes, light).reshape(-1, samples).any(1)
+    return out
