@@ -45,7 +45,7 @@ NAME = "fourier_defaults"
 #: label -> fourier_filter properties
 MODES = {"default": {}, "paper": {"reference_rays": 1, "slice_interpolation": False,
                                   "exact_fallback": False, "trace_ends": False}}
-#: (the default: ``visibility="auto"`` = the exact sum, slice interpolation
+#: (the default: ``visibility="exact_directional"`` = the exact sum, slice interpolation
 #: with the re-march of disagreeing samples; ``paper`` sets a filter
 #: property, so ``auto`` takes the Fourier filter, on the nearest slice)
 #: the cost table's modes: ``before`` = the defaults before the slice

@@ -2,7 +2,7 @@
 warm time and peak memory at the defaults and with more Fourier
 coefficients.
 
-Spot lights take Klehm 2014's filter under ``visibility=auto`` (their
+Spot lights take Klehm 2014's filter under the default ``visibility=exact_directional`` (their
 kernel per texel and query makes the direct sum many times the filter's
 cost), so the truncated series' ringing is the error a user sees.  Per
 scene (``spot_room``, ``spot_columns``), at pixel centres against the exact

@@ -11,7 +11,7 @@ thread).  Here, on nave_offscreen and nave_onscreen at 1280x960:
   light-ray grid with the box exits, rectified depth, light-side factor)
   and ``blockers`` (blocker angles of ``prefilter`` = 4 sub-rays per light
   ray, converted to depth modes) of the render's ``RenderResult.timings``, for
-  ``rectification=traced`` (every sub-ray ray-traced with Mitsuba) and
+  ``blockers=traced`` (every sub-ray ray-traced with Mitsuba) and
   ``resampled`` (read from a 2048² shadow map; the map's construction is
   inside ``blockers`` and is timed as its own sub-stage ``map build``, so
   that ``blockers net`` = the paper's O(s·d) shadow-map rectification --
@@ -141,7 +141,7 @@ def measure_size(path, size, variations, s, repeats, full: bool) -> list[dict]:
         for slices, d in variations:
             label = f"{rect} slices={slices} d={d}"
             integs[label] = c.build(PROBE, {"slices": slices, "light_rays": d,
-                                            "rectification": rect,
+                                            "blockers": rect,
                                             "shadowmap_resolution": s["shadowmap_resolution"]})
             meta[label] = {"rectification": rect, "slices_param": slices, "light_rays": d,
                            "mode": "probe"}
@@ -149,7 +149,7 @@ def measure_size(path, size, variations, s, repeats, full: bool) -> list[dict]:
             slices, d = variations[0]
             label = f"{rect} slices={slices} d={d} full"
             integs[label] = c.build(PROBE, {"slices": slices, "light_rays": d,
-                                            "rectification": rect, "stop_after_blockers": False,
+                                            "blockers": rect, "stop_after_blockers": False,
                                             "shadowmap_resolution": s["shadowmap_resolution"]})
             meta[label] = {"rectification": rect, "slices_param": slices, "light_rays": d,
                            "mode": "full"}

@@ -13,7 +13,7 @@ for similar quality"), with the visual match replaced by a measured one:
    Mitsuba; each sample shared by its two neighbouring slices), with half
    the automatic light rays and with slice lines up to 2 px apart (faster,
    coarser points of its own time/error curve), with each sample in its
-   nearest slice only (the paper's way), and with ``rectification=resampled`` from
+   nearest slice only (the paper's way), and with ``blockers=resampled`` from
    a shadow map of the *same* resolution as the ray marcher's (the paper's
    setting: "both algorithms use a 4096x4096 shadow map");
 3. the ray marcher's time at the tree's relMSE is interpolated log-log
@@ -98,7 +98,7 @@ def settings_of_run(s: dict) -> dict:
            "tree traced, slices 2 px apart": ("epipolar_tree", {"slice_spacing": 2.0}),
            "tree traced, nearest slice (paper)": ("epipolar_tree",
                                                   {"slice_interpolation": False}),
-           "tree resampled": ("epipolar_tree", {"rectification": "resampled",
+           "tree resampled": ("epipolar_tree", {"blockers": "resampled",
                                                 "shadowmap_resolution": sm})}
     return {**out, **marches("raymarch", s["steps"], visibility="shadowmap",
                              shadowmap_resolution=sm)}
@@ -182,7 +182,7 @@ def add_paper_times(rows: list[dict]) -> None:
             continue
         if r["integrator"] == "raymarch":
             r["paper_s"] = r["scattering_net_s"]
-        elif r["params"].get("rectification") == "resampled":
+        elif r["params"].get("blockers") == "resampled":
             r["paper_s"] = r["scattering_s"] - build
             r["shadowmap_build_estimate_s"] = build
         else:

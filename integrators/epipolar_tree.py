@@ -156,7 +156,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                spot beam running along the slices falls
                                between them; ``stats["remarched"]`` counts
                                these samples
-    ``rectification``          ``traced`` (default): light rays traced with
+    ``blockers``               ``traced`` (default): light rays traced with
                                Mitsuba; ``resampled``: blockers read from an
                                orthographic shadow map (as the paper)
     ``shadowmap_resolution``   texels per side for ``resampled`` (2048)
@@ -179,13 +179,15 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     interval in which a view ray ends, ray-traced on the sample's own ray
     where its depth modes are mixed (:meth:`sweep_queries`); point/spot: the short segment between pinhole and near plane is
     taken with one midpoint sample (the light must be farther from the eye
-    than the near plane).  ``rectification="resampled"`` adds the shadow
+    than the near plane).  ``blockers="resampled"`` adds the shadow
     map's texel size (orthographic, perspective or cube map by light kind).
 
     Baran, Chen, Ragan-Kelley, Durand, Lehtinen: A Hierarchical Volumetric
     Shadow Algorithm for Single Scattering, ACM TOG 29(6), 2010.
     Fenwick: A new data structure for cumulative frequency tables, 1994.
     """
+
+    RENAMED_PROPERTIES = {"rectification": "blockers"}
 
     SLICE_INTERPOLATION = True
     ROW_SUBSETS = True
@@ -196,15 +198,15 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     def read_method_properties(self, props):
         self.prefilter = read_number(props, "prefilter", 4, minimum=1, maximum=16, integer=True)
-        self.rectification = read_choice(props, "rectification", "traced",
+        self.blockers = read_choice(props, "blockers", "traced",
                                          ("traced", "resampled"))
         self.adaptive_prefilter = read_bool(props, "adaptive_prefilter", True)
 
     def reuse_refusal(self):
-        if self.rectification == "resampled":
-            return ("epipolar_tree with rectification='resampled' reads its blockers from a "
+        if self.blockers == "resampled":
+            return ("epipolar_tree with blockers='resampled' reads its blockers from a "
                     "shadow map fitted to what the whole frame sees, so an object moving "
-                    "elsewhere changes slices the reuse keeps: use rectification='traced' "
+                    "elsewhere changes slices the reuse keeps: use blockers='traced' "
                     "(the default) or reuse=False.")
         return None
 
@@ -291,22 +293,22 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     def blocker_angles(self, params, cap, queries, rays, lit=None):
         """The blocker map S (§3, §7 sub-rays): traced with Mitsuba, or read
-        from a classic shadow map (``rectification="resampled"``)."""
+        from a classic shadow map (``blockers="resampled"``)."""
         model = light_model(params)
-        if self.rectification == "traced":
+        if self.blockers == "traced":
             return model.sub_ray_blockers(params, queries, rays, self.prefilter, lit=lit,
                                           adaptive=self.adaptive_prefilter)
         shadow_map = self.shadow_map(params, cap)
         return model.resample_blockers(params, queries, rays, shadow_map, self.prefilter)
 
     def shadow_map(self, params, cap):
-        """The classic shadow map of ``rectification="resampled"``."""
+        """The classic shadow map of ``blockers="resampled"``."""
         return capture_shadow_map(params, cap, self.shadowmap_resolution)
 
     def to_string(self):
         return (f"EpipolarTreeIntegrator[slices={self.slices}, light_rays={self.light_rays}, "
                 f"svd_rank={self.svd_rank}, prefilter={self.prefilter}, "
-                f"rectification={self.rectification}, output={self.output}]")
+                f"blockers={self.blockers}, output={self.output}]")
 
 
 mi.register_integrator("epipolar_tree", lambda props: EpipolarTreeIntegrator(props))

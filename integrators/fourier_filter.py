@@ -37,9 +37,11 @@ from .template.epipolar import EpipolarIntegrator
 
 
 WEIGHTS = ("average", "reference_ray", "exact")
-#: ``visibility``: the Fourier filter (Klehm) or the direct sum (fourier_exact)
-VISIBILITIES = ("auto", "exact", "filter")
-#: properties of the Fourier filter: setting one makes ``visibility="auto"`` the filter
+#: ``visibility``: ``exact_directional`` (the default: the direct sum for a
+#: directional light, Klehm's filter for point and spot lights), ``exact``
+#: (the direct sum, :mod:`integrators.fourier.exact`) or ``filter`` (Klehm's)
+VISIBILITIES = ("exact_directional", "exact", "filter")
+#: properties of the Fourier filter: setting one makes the default ``visibility`` the filter
 FILTER_PROPERTIES = ("coefficients", "weights", "reference", "reference_rays", "regions",
                      "clamp", "fit_depth", "exact_bounds", "depth_range")
 RECTIFICATIONS = ("auto", "epipolar", "projective")
@@ -65,7 +67,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     docstring (DESIGN §3).
 
     =========================  =============================================
-    ``visibility``             ``auto`` (default) | ``exact`` | ``filter``
+    ``visibility``             ``exact_directional`` (default) | ``exact`` |
+                               ``filter``
                                (:mod:`integrators.fourier`)
     ``reference_rays``         reference rays per row of ``reference_ray``
                                (0: automatic, 1: Klehm's single ray)
@@ -213,9 +216,14 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         self.M = check_M(M)
         self.weights = read_choice(props, "weights", "reference_ray", WEIGHTS)
         self.reference = read_choice(props, "reference", "bisectrix", REFERENCES)
-        self.visibility = read_choice(props, "visibility", "auto", VISIBILITIES)
-        #: ``auto``: the exact sum, unless a property of the filter asks for it
-        self.visibility_used = (self.visibility if self.visibility != "auto" else
+        if props.get("visibility", None) == "auto":
+            raise ValueError("Property 'visibility' = 'auto' is now called 'exact_directional' "
+                             "(the default: the exact visibility sum for a directional light, "
+                             "Klehm's filter for point and spot lights); or choose 'exact' or "
+                             "'filter'.")
+        self.visibility = read_choice(props, "visibility", "exact_directional", VISIBILITIES)
+        #: the default: the exact sum, unless a property of the filter asks for it
+        self.visibility_used = (self.visibility if self.visibility != "exact_directional" else
                                 "filter" if explicit_filter else "exact")
         self.reference_rays = read_number(props, "reference_rays", 0, minimum=0,
                                           maximum=256, integer=True)
@@ -491,13 +499,13 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return V
 
     def exact_visibility(self, params) -> bool:
-        """The direct sum: ``visibility="exact"``, or ``auto`` without filter
+        """The direct sum: ``visibility="exact"``, or the default without filter
         properties for a directional light (point/spot lights keep the
-        filter under ``auto``: their kernel per texel and query makes the
+        filter under ``exact_directional``: their kernel per texel and query makes the
         direct sum many times the filter's cost)."""
         if self.visibility_used != "exact":
             return False
-        return self.visibility == "exact" or light_model(params).auto_direct_sum
+        return self.visibility == "exact" or light_model(params).direct_sum_by_default
 
     def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and

@@ -129,7 +129,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     ``threshold_mode``          ``relative`` (default) or ``absolute`` (depth)
     ``visibility_threshold``    relative difference of neighbouring results
                                 that splits their interval (default 0.05)
-    ``rectification``           ``traced`` (default) or ``resampled``
+    ``blockers``                ``traced`` (default) or ``resampled``
     ``light_rays``              texels per slice, a power of two (default 0:
                                 above the image diagonal, at least 1024;
                                 resampled: above the shadow map's size
@@ -169,6 +169,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     when the frame was marched pixel by pixel).
     """
 
+    RENAMED_PROPERTIES = {"rectification": "blockers"}
+
     def read_properties(self, props):
         self.profile = read_choice(props, "profile", "none",
                                    ("none",) + tuple(PROFILES) + METHOD_PROFILES)
@@ -188,7 +190,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.refinement_threshold = read_number(props, "refinement_threshold", 0.03, minimum=0.0)
         self.threshold_mode = read_choice(props, "threshold_mode", "relative", THRESHOLD_MODES)
         self.visibility_threshold = read_number(props, "visibility_threshold", 0.05, minimum=0.0)
-        self.rectification = read_choice(props, "rectification", "traced",
+        self.blockers = read_choice(props, "blockers", "traced",
                                          ("traced", "resampled"))
         self.light_rays = read_number(props, "light_rays", 0, minimum=0, maximum=1 << 16,
                                       integer=True)
@@ -229,7 +231,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
             s["samples"] = int((cam.width ** 2 + cam.height ** 2) ** 0.5) + 2
         if not s["light_rays"]:
             n = texel_count(cam.width, cam.height)
-            if self.rectification == "resampled":
+            if self.blockers == "resampled":
                 n = max(n, texel_count(2 * s["shadowmap_resolution"], 0))
             s["light_rays"] = n
         return s
@@ -239,13 +241,13 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         frame-wide choices of :mod:`.minmax.slice_subset`): traced blockers
         and the ``depth`` or ``visibility`` criterion, whose breaks compare
         neighbours of one slice.  Otherwise a partial render computes the whole frame."""
-        return self.rectification == "traced" and self.refinement in ("depth", "visibility")
+        return self.blockers == "traced" and self.refinement in ("depth", "visibility")
 
     def scattering(self, params, cap):
         check_scene(params, cap)
         s = self.settings(params)
         shadow_map = None
-        if self.rectification == "resampled":
+        if self.blockers == "resampled":
             with self.stage("shadowmap"):
                 shadow_map = capture_shadow_map(params, cap, s["shadowmap_resolution"])
         with self.stage("samples"):
@@ -367,7 +369,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         """A frame marched pixel by pixel (:meth:`marches_every_pixel`) with
         traced blockers computes each camera sample from its own ray alone:
         a partial render then marches the masked samples alone."""
-        if self.rectification != "traced":
+        if self.blockers != "traced":
             return False
         s = self.settings(params)
         layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
@@ -388,7 +390,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         """Stage ``blockers`` of the slices of ``samples``: their 1-D
         height maps."""
         with self.stage("blockers"):
-            return slice_light_rays(params, samples, s["light_rays"], self.rectification,
+            return slice_light_rays(params, samples, s["light_rays"], self.blockers,
                                     shadow_map)
 
     def slice_values(self, params, samples, flags, rays, table, const, shadow_map=None):
@@ -450,7 +452,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
 
     def to_string(self):
         return (f"MinMaxEpipolarIntegrator[profile={self.profile}, slices={self.slices}, "
-                f"rectification={self.rectification}, output={self.output}]")
+                f"blockers={self.blockers}, output={self.output}]")
 
 
 mi.register_integrator("minmax_epipolar", lambda props: MinMaxEpipolarIntegrator(props))

@@ -3,6 +3,8 @@ repository, and every section they cite exists there."""
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "docs" / "design.md"
 
@@ -45,3 +47,29 @@ def test_no_issue_numbers_in_library_docstrings():
                 if re.search(r"\bissue \d+|\(issue\b", line, flags=re.I):
                     hits.append(f"{path.relative_to(ROOT)}:{i}")
     assert not hits, hits
+
+
+DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")),
+             *sorted((ROOT / "results").glob("*/README.md"))]
+
+
+def test_readme_is_a_users_guide_of_at_most_400_lines():
+    assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 400
+
+
+@pytest.mark.parametrize("path", DOCUMENTS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_documents_cite_no_issue_numbers_or_sessions(path):
+    """Documents are for users and the next engineer: no tracker numbers,
+    no session logs (the design document may name its own sections)."""
+    bad = [line for line in path.read_text(encoding="utf-8").splitlines()
+           if re.search(r"\b[Ii]ssue \d+|\(#\d+\)|\b[Ss]ession \d+|\bthis session\b", line)]
+    assert not bad, f"{path.name}: {bad[:3]}"
+
+
+@pytest.mark.parametrize("path", DOCUMENTS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(path):
+    text = path.read_text(encoding="utf-8")
+    missing = [target for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+               if "://" not in target and not target.startswith("mailto:")
+               and not (path.parent / target).exists()]
+    assert not missing, f"{path.relative_to(ROOT)} links to missing {missing}"

@@ -159,7 +159,7 @@ def test_thick_medium_converges():
 def test_resampled_shadow_map_converges():
     scene = mi.load_dict(scene_dict(res=RES, **SCENES["on_screen"]))
     ref = reference(scene)
-    errors = [normalised_relmse(render(scene, "epipolar_tree", rectification="resampled",
+    errors = [normalised_relmse(render(scene, "epipolar_tree", blockers="resampled",
                                        shadowmap_resolution=res, slices=400, light_rays=400)[0],
                                 ref) for res in (16, 1024)]
     assert errors[1] < errors[0] and errors[1] < 1e-3, errors
@@ -312,13 +312,13 @@ def test_resampled_shadow_maps_for_local_lights(name):
     """Blockers read from the cube (point) or perspective (spot) shadow map."""
     scene = mi.load_dict(scene_dict(res=RES, **LOCAL_SCENES[name]))
     ref = reference(scene)
-    errors = [normalised_relmse(render(scene, "epipolar_tree", rectification="resampled",
+    errors = [normalised_relmse(render(scene, "epipolar_tree", blockers="resampled",
                                        shadowmap_resolution=res, slices=400, light_rays=400)[0],
                                 ref) for res in (16, 1024)]
     assert errors[1] < errors[0] and errors[1] < 1e-3, errors
 
 
-@pytest.mark.parametrize("props", [{"rectification": "warped"}, {"prefilter": 0},
+@pytest.mark.parametrize("props", [{"blockers": "warped"}, {"prefilter": 0},
                                    {"svd_tolerance": 0.0}, {"ring_degrees": -1.0},
                                    {"light_rays": 1.5}])
 def test_invalid_properties(props):

@@ -32,7 +32,7 @@ def _reference(name, res, sigma_t=None):
     return _render(name, res, "raymarch", sigma_t, visibility="exact", steps=1024)
 
 
-@pytest.mark.parametrize("visibility", ["auto", "filter"])
+@pytest.mark.parametrize("visibility", ["exact_directional", "filter"])
 @pytest.mark.parametrize("sigma_t", [0.002, 0.15, 1.0])
 def test_energy_right_from_thin_to_thick_fog(sigma_t, visibility):
     """Sun room (~10 m across): σt·size 0.02 to 10, the default (exact sum)

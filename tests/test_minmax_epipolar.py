@@ -432,7 +432,7 @@ def test_refinement_criteria_render(make_scene, criterion):
 
 def test_resampled_source_renders(make_scene):
     scene = make_scene(light="directional", res=(32, 24))
-    img, _ = render(scene, rectification="resampled", shadowmap_resolution=256)
+    img, _ = render(scene, blockers="resampled", shadowmap_resolution=256)
     ref = exact(scene)
     assert np.all(np.isfinite(img))
     assert metrics.scale_free_relmse(img, ref) < 5e-2
@@ -465,7 +465,7 @@ def test_no_nan_on_stress_cases():
     ({"light_rays": 100}, "power of two"),
     ({"refinement": "magic"}, "refinement"),
     ({"profile": "ultra"}, "profile"),
-    ({"rectification": "bent"}, "rectification"),
+    ({"blockers": "bent"}, "blockers"),
 ])
 def test_clear_value_errors(make_scene, props, match):
     scene = make_scene(res=(16, 12))
@@ -535,7 +535,7 @@ def test_resampled_tree_never_changes_the_per_texel_march(make_scene, light):
     march's image (to float32 rounding and, for the spot, to the table's
     section error)."""
     scene = make_scene(light=light, res=(32, 24))
-    props = dict(rectification="resampled", shadowmap_resolution=128, light_rays=512)
+    props = dict(blockers="resampled", shadowmap_resolution=128, light_rays=512)
     on, a = render(scene, **props)
     off, b = render(scene, min_max=False, **props)
     assert np.allclose(on, off, rtol=2e-3, atol=2e-3 * off.max())

@@ -133,8 +133,8 @@ def test_reuse_refuses_what_it_cannot_make_exact():
     with pytest.raises(ValueError, match="visibility='exact'"):
         Sequence(scene, mi.load_dict(props), [parse_motion(MOTIONS["translate"])], frames=2)
     Sequence(scene, mi.load_dict(props), [parse_motion(MOTIONS["translate"])], frames=2, reuse=False)
-    tree = {"type": "epipolar_tree", "rectification": "resampled"}
-    with pytest.raises(ValueError, match="rectification='traced'"):
+    tree = {"type": "epipolar_tree", "blockers": "resampled"}
+    with pytest.raises(ValueError, match="blockers='traced'"):
         Sequence(scene, mi.load_dict(tree), [parse_motion(MOTIONS["translate"])], frames=2)
 
 

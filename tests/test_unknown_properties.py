@@ -58,3 +58,22 @@ def test_a_sampler_with_no_samples_is_a_clear_error(capsys, tmp_path):
     rc, err = _cli_error(capsys, tmp_path, "-D", "spp=0")
     err = "\n".join(err)
     assert rc == 2 and "sample_count = 0" in err and "at least 1" in err
+
+
+@pytest.mark.parametrize("plugin", ["epipolar_tree", "minmax_epipolar"])
+def test_the_old_name_of_blockers_says_the_new_one(plugin):
+    """``rectification`` (traced | resampled) is ``blockers`` in every
+    plugin; in ``fourier_filter`` ``rectification`` is the epipolar or
+    projective map."""
+    with pytest.raises(Exception) as err:
+        mi.load_dict({"type": plugin, "rectification": "resampled"})
+    assert "'rectification' (now called 'blockers')" in str(err.value)
+    assert mi.load_dict({"type": plugin, "blockers": "resampled"}).blockers == "resampled"
+
+
+def test_fourier_visibility_auto_says_its_new_name():
+    with pytest.raises(Exception, match="now called 'exact_directional'"):
+        mi.load_dict({"type": "fourier_filter", "visibility": "auto"})
+    integ = mi.load_dict({"type": "fourier_filter"})
+    assert integ.visibility == "exact_directional" and integ.visibility_used == "exact"
+    assert mi.load_dict({"type": "fourier_filter", "coefficients": 32}).visibility_used == "filter"

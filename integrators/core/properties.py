@@ -53,17 +53,22 @@ def read_bool(props, name: str, default: bool) -> bool:
     return value
 
 
-def check_unknown_properties(props, plugin: str, names=()) -> None:
+def check_unknown_properties(props, plugin: str, names=(), renamed=None) -> None:
     """A ``ValueError`` naming every property of ``props`` that the plugin
     never read (a misspelled ``slice_spacng`` would otherwise render the
     defaults silently) and, for each, the closest of ``names`` (what the
-    plugin reads) and the properties it did read."""
+    plugin reads) and the properties it did read; a name in ``renamed``
+    (old name -> new name) says what it is called now."""
     unknown = sorted(props.unqueried())
     if not unknown:
         return
     known = sorted(set(names) | {k for k in props.keys() if k not in unknown})
     parts = []
+    renamed = renamed or {}
     for name in unknown:
+        if name in renamed:
+            parts.append(f"'{name}' (now called '{renamed[name]}')")
+            continue
         close = difflib.get_close_matches(name, known + list(COMMON_PROPERTIES), n=1)
         parts.append(f"'{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
     raise ValueError(

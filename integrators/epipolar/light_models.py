@@ -32,7 +32,7 @@ stage                      directional (Baran §3–§7) / point, spot (§9)
                            §9 kernel's interval mean
 ``projective``,            flags: Klehm's projective map (parallel rays only),
 ``kernel_recurrence``,     a geometric kernel over equal rays, and
-``auto_direct_sum``        ``fourier_filter``'s ``visibility=auto`` choice
+``direct_sum_by_default``        ``fourier_filter``'s ``visibility=exact_directional``
 =========================  ==================================================
 
 Where the maths is one, a stage is one function parametrised by the model
@@ -158,9 +158,9 @@ class LightModel:
     kernel_recurrence = False
     #: whether Klehm's projective rectification (§4.2, parallel light rays) applies
     projective = False
-    #: whether ``fourier_filter``'s ``visibility="auto"`` takes the direct
+    #: whether ``fourier_filter``'s default ``visibility="exact_directional"`` takes the direct
     #: sum (cheap where the kernel is a recurrence) rather than the filter
-    auto_direct_sum = False
+    direct_sum_by_default = False
 
 
 class Directional(LightModel):
@@ -170,7 +170,7 @@ class Directional(LightModel):
     ray_kernel = staticmethod(directional_ray_kernel)
     kernel_recurrence = True
     projective = True
-    auto_direct_sum = True
+    direct_sum_by_default = True
     shadow_maps = ("ortho",)
     map_point = staticmethod(axial_map_point)
     map_blocker_beta = staticmethod(axial_blocker_beta)

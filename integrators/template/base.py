@@ -173,6 +173,10 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
     """Base class; subclasses implement :meth:`scattering` (and may read
     their own properties in :meth:`read_properties`)."""
 
+    #: properties a plugin has renamed: old name -> new name (the error for
+    #: the old name says the new one)
+    RENAMED_PROPERTIES: dict = {}
+
     #: stages the template times; methods may add their own via self.stage()
     def __init__(self, props):
         check_variant()
@@ -187,7 +191,8 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         self.method_name = props.plugin_name()
         self.read_properties(props)
         check_unknown_properties(props, self.method_name,
-                                 [k for k in vars(self) if not k.startswith("_")])
+                                 [k for k in vars(self) if not k.startswith("_")],
+                                 self.RENAMED_PROPERTIES)
         #: the properties as given, but the quality mode (quality="auto"
         #: renders with these plus the settings it chooses)
         self._explicit = {k: props[k] for k in props.keys()
