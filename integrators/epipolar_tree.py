@@ -18,7 +18,7 @@ from .epipolar.blockers import blocker_modes
 from .epipolar.last_interval import (last_interval_correction, last_interval_visibility,
                                      sweep_magnitude, unresolved_samples)
 from .epipolar.light_models import light_model
-from .epipolar.light_rays.directional import rectified_depth
+from .epipolar.light_rays.layout import rectified_depth
 from .epipolar.queries import gather_queries
 from .epipolar.query_terms import assemble_queries, first_leaf_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows

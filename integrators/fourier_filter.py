@@ -22,7 +22,7 @@ from .fourier.exact import exact_sums
 from .fourier.prefilter import region_length
 from .fourier.projective_rays import (ProjectiveLightRays, projective_light_rays,
                                       projective_query_terms, projective_x_range,
-                                      texel_blocker_angles, texel_separated_kernel)
+                                       texel_separated_kernel)
 from .fourier.rectified_map import (Coverage, DEPTH_RANGES, FilterSettings, REFERENCES,
                                     class_sums, near_band, near_step_weight, prefilter_rows,
                                     rectified_shadow_map, series_sum, series_unreliable,
@@ -408,16 +408,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         perspective or cube by light kind); ``lit``: the local light's
         texels that carry light (the others are not traced)."""
         model = light_model(params)
-        if isinstance(rays, ProjectiveLightRays):      # one light ray per texel centre
-            if self.blockers == "traced":
-                return texel_blocker_angles(model.trace_blockers, params, queries, rays, 1)
-            shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-            return texel_blocker_angles(model.resample_blockers, params, queries, rays,
-                                        shadow_map, 1)
         if self.blockers == "traced":
-            return model.trace_blockers(params, queries, rays, 1, lit=lit)
+            return rays.read_blockers(model.trace_blockers, params, queries, 1, lit=lit)
         shadow_map = capture_shadow_map(params, cap, self.shadowmap_resolution)
-        return model.resample_blockers(params, queries, rays, shadow_map, 1)
+        return rays.read_blockers(model.resample_blockers, params, queries, shadow_map, 1)
 
     def channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t: float,
                      length: float = 0.0, beta_b=None, tail=None, kernels=None):

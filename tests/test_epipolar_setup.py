@@ -82,7 +82,7 @@ def test_queries_against_per_sample_numpy(light):
 
     # depth D = γ_end / Δγ, Δγ = (max γ_end of the row) / d
     rays = es_directional.light_ray_grid(params, q, 40)
-    D = np.array(es_directional.rectified_depth(q, rays))
+    D = np.array(es_layout.rectified_depth(q, rays))
     gmax = np.zeros(q.n)
     np.maximum.at(gmax, row, np.array(q.gamma_end))
     np.testing.assert_allclose(D[row, col], np.array(q.gamma_end) / (gmax[row] / 40), rtol=1e-5)
@@ -336,7 +336,7 @@ def test_local_light_rays_form_one_lattice():
             np.testing.assert_allclose(b, gmax, rtol=1e-6)
         else:
             assert lit.any() and np.all(count[~lit] == 1)
-        D = np.array(es_directional.rectified_depth(q, rays))
+        D = np.array(es_layout.rectified_depth(q, rays))
         row, col = np.array(q.row), np.array(q.col)
         np.testing.assert_allclose(D[row, col], (np.array(q.gamma_end) - lo[row]) / delta[0],
                                    rtol=1e-4, atol=1e-3)
@@ -539,7 +539,7 @@ def test_separated_local_kernel_reproduces_the_cell_means(light, phase, sigma_t)
     delta = float(rays.delta_gamma[0])
     lo, count = np.array(rays.gamma_lo), np.array(rays.d_count)
     row, col, beta = np.array(q.row), np.array(q.col), np.array(q.beta)
-    D = np.array(es_directional.rectified_depth(q, rays))[row, col]
+    D = np.array(es_layout.rectified_depth(q, rays))[row, col]
     pick = np.arange(0, q.count, 17)
     errs = []
     for j in pick:

@@ -238,10 +238,9 @@ def test_shared_slices_bound_a_narrow_spot_on_sparse_slices(monkeypatch):
     the samples they disagree on keep it bounded.  The lit cone's own
     slices and marched samples (issue 13) are off: they bound it alone."""
     from integrators.epipolar.light_rays import local as ell
-    from integrators.epipolar import frame as epipolar_setup_frame
-    from integrators.epipolar import queries as epipolar_setup_queries
+    from integrators.epipolar import frame as epipolar_frame
 
-    monkeypatch.setattr(epipolar_setup_frame, "MIN_SLICE_PIXELS", 1)
+    monkeypatch.setattr(epipolar_frame, "MIN_SLICE_PIXELS", 1)
     monkeypatch.setattr(ell, "CONE_MARCH_MIN", 0)
     monkeypatch.setattr(ell, "CONE_MARCH_FRACTION", 0.0)
     monkeypatch.setattr(ell, "MIN_LIT_SLICES", 0)

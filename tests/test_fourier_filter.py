@@ -15,7 +15,7 @@ from integrators.epipolar.queries import assign_queries
 from integrators.epipolar.blockers import blocker_modes
 from integrators.epipolar.frame import choose_slices, epipolar_frame_of
 from integrators.epipolar.light_factor import light_side_factor
-from integrators.epipolar.light_rays.directional import rectified_depth
+from integrators.epipolar.light_rays.layout import rectified_depth
 from integrators.epipolar.light_models import Directional, light_model
 from integrators.fourier_filter import PROJECTIVE_MIN_ANGLE
 from integrators.fourier.rectified_map import (Coverage, eq12_ratio_reference,

@@ -107,6 +107,7 @@ from integrators.epipolar import local_light_factor as ell_local_light_factor
 from integrators.epipolar import blockers as es_blockers
 from integrators.epipolar import frame as es_frame
 from integrators.epipolar.light_rays import directional as es_directional
+from integrators.epipolar.light_rays import layout as es_layout
 from integrators.epipolar import queries as es_queries
 from integrators.core.capture import capture_camera, capture_shadow_map, first_surface
 from integrators.epipolar.light_models import light_model
@@ -188,7 +189,7 @@ def _sweep_arrays(queries, rays):
     """NumPy (row, β, D) of the queries and the padded β table per row."""
     row = np.array(queries.row)
     beta = np.array(queries.beta)
-    D = np.array(es_directional.rectified_depth(queries, rays))[row, np.array(queries.col)]
+    D = np.array(es_layout.rectified_depth(queries, rays))[row, np.array(queries.col)]
     return row, beta, D
 
 

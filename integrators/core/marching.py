@@ -13,7 +13,6 @@ import math
 from typing import NamedTuple
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from .capture import sample_rng, seed_offset
 from .light_transport import (color, light_transmittance, phase_eval, point, sample_light, scalar,

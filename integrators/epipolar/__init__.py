@@ -102,7 +102,7 @@ Ring (§6; :func:`~integrators.epipolar.frame.in_ring`, :func:`~integrators.epip
 
 Point and spot lights (§9): :func:`~integrators.epipolar.frame.epipolar_frame_of`,
 :func:`~integrators.epipolar.queries.assign_queries`, the light-ray offset ``γ_lo`` of :class:`~integrators.epipolar.light_rays.directional.LightRays`,
-:func:`~integrators.epipolar.light_rays.directional.rectified_depth` and the sub-ray and blocker-mode functions serve
+:func:`~integrators.epipolar.light_rays.layout.rectified_depth` and the sub-ray and blocker-mode functions serve
 them too, with γ the angle at the light (``rectify`` conventions); the
 rest of the local-light maths (blockers traced from the light, intensity,
 kernel, per-query terms) is in the point and spot light sections below.

@@ -21,8 +21,6 @@ import mitsuba as mi
 
 from ..core.opaque import scalar, scalar_u32
 from ..epipolar.light_models import light_model
-from .projective_rays import ProjectiveLightRays
-from .rectified_map import texel_integral
 
 
 def texel_kernel(params, queries, rays, sigma_t: float):
@@ -30,13 +28,8 @@ def texel_kernel(params, queries, rays, sigma_t: float):
     tan(β/2)) giving the kernel of :func:`~integrators.fourier.references.row_kernel`
     for any β (one value per lane): the light model's ``ray_kernel``, or a
     projective map's texel integral (Eq. 12; σt a kernel parameter)."""
-    if isinstance(rays, ProjectiveLightRays):
-        s, gamma = rays.positions(0.0)
-        widths = rays.widths()
-        sigma = scalar(sigma_t)
-        return lambda t, tan: texel_integral(dr.gather(mi.Float, gamma, t),
-                                             dr.gather(mi.Float, widths, t), sigma * tan)
-    return light_model(params).ray_kernel(params, queries, rays, sigma_t)
+    return (rays.own_kernel(sigma_t)
+            or light_model(params).ray_kernel(params, queries, rays, sigma_t))
 
 
 def exact_average(params, queries, rays, beta_b, cover, L, sigma_t: float,
@@ -74,8 +67,7 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
     k0 = texel - first                        # last (partly) covered texel
     tan = dr.tan(0.5 * beta)
     active = mi.Bool(active)
-    geometric = (recurrence and light_model(params).kernel_recurrence
-                 and not isinstance(rays, ProjectiveLightRays))
+    geometric = recurrence and light_model(params).kernel_recurrence and rays.equal_widths
     if geometric:
         c = sigma * tan
         k_first = dr.exp(-c * rays.start(row))

@@ -12,11 +12,12 @@ import numpy as np
 from rectify.projective import ProjectiveColumns, ProjectiveRows
 
 from ..core.light_transport import color, segment_weight
-from ..core.opaque import Divisor, floats, scalar_u32
+from ..core.opaque import Divisor, floats, scalar, scalar_u32
 from ..epipolar.kernel.separation import separate_kernel
 from ..epipolar.light_rays.directional import LightRays, with_box_exits
 from ..epipolar.light_rays.layout import LightRayLayout
 from ..epipolar.query_terms import directional_query_terms
+from .rectified_map import texel_integral
 
 
 # --------------------------------------------------------------------------
@@ -69,6 +70,23 @@ class ProjectiveLightRays(LightRayLayout):
         """(n·d,) γ-width of every texel."""
         s, g, _ = self.lanes()
         return dr.gather(mi.Float, self.inv_cos, s) * dr.gather(mi.Float, self.x_widths, g)
+
+    def texel_weights(self) -> mi.Float:
+        return self.widths()
+
+    def own_kernel(self, sigma_t: float):
+        """Eq. 12: a texel's exact integral with the map's own edges (σt a
+        kernel parameter)."""
+        _, gamma = self.positions(0.0)
+        widths = self.widths()
+        sigma = scalar(sigma_t)
+        return lambda t, tan: texel_integral(dr.gather(mi.Float, gamma, t),
+                                             dr.gather(mi.Float, widths, t), sigma * tan)
+
+    def read_blockers(self, read, params, queries, *args, **kw) -> mi.Float:
+        """One light ray through each texel's centre (``lit`` is not
+        used: a directional light lights every texel)."""
+        return texel_blocker_angles(read, params, queries, self, *args)
 
     def query_depth(self, queries) -> mi.Float:
         """D (Q,): each query's end point as a fractional texel index, the

@@ -44,7 +44,7 @@ per-region bounds of ``exact_bounds``/``fit_depth`` only see series texels).
 Coverage
 --------
 A query with fractional depth ``D = γ_end/Δγ``
-(:func:`~integrators.epipolar.light_rays.directional.rectified_depth`) covers ``clip(D − g, 0, 1)``
+(:func:`~integrators.epipolar.light_rays.layout.rectified_depth`) covers ``clip(D − g, 0, 1)``
 of texel ``g`` (:mod:`integrators.tree.partial_sum_tree` convention);
 ``Σ_g w_g clip(D − g, 0, 1)`` is one exclusive per-row prefix sum plus a
 fraction of the next texel (:class:`Coverage`).  In
@@ -77,10 +77,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, two_or_more
-from ..epipolar.light_rays.directional import rectified_depth
 from ..epipolar.query_terms import cell_average
 from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
-from .projective_rays import ProjectiveLightRays
 
 
 DEPTH_RANGES = ("slice", "full")
@@ -240,10 +238,7 @@ class Coverage:
     @staticmethod
     def of(queries, rays) -> "Coverage":
         d, d_o = rays.d, scalar_u32(rays.d)
-        if isinstance(rays, ProjectiveLightRays):
-            D = rays.query_depth(queries)
-        else:
-            D = dr.gather(mi.Float, rectified_depth(queries, rays).array, queries.slot)
+        D = rays.query_depth(queries)
         D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, mi.Float(d_o))
         k0 = dr.minimum(mi.UInt32(D), d_o - 1)
         return Coverage(d, queries.row * d_o + k0, D - mi.Float(k0), D - 1.0)

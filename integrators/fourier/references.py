@@ -46,8 +46,7 @@ import numpy as np
 
 from ..core.opaque import scalar, scalar_u32
 from ..epipolar.light_models import light_model
-from .projective_rays import ProjectiveLightRays
-from .rectified_map import query_beta_range, texel_integral
+from .rectified_map import query_beta_range
 
 
 #: spacing of the reference rays in s = log(1 + σt tan(β/2) ℓ)
@@ -158,9 +157,8 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
     tan_ref = dr.tan(0.5 * beta_ref)
     s, gamma = rays.positions(0.0)
     tan_ref = dr.gather(mi.Float, tan_ref, s)
-    if isinstance(rays, ProjectiveLightRays):      # Eq. 12 with the map's own texel edges
-        return texel_integral(gamma, rays.widths(), scalar(sigma_t) * tan_ref)
-    kernel = light_model(params).ray_kernel(params, queries, rays, sigma_t)
+    kernel = (rays.own_kernel(sigma_t)
+              or light_model(params).ray_kernel(params, queries, rays, sigma_t))
     return kernel(dr.arange(mi.UInt32, dr.width(gamma)), tan_ref)
 
 

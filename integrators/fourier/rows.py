@@ -24,7 +24,6 @@ from rectify.projective import ProjectiveRectification, ProjectiveRows
 from ..core.opaque import vector
 from ..epipolar.light_models import light_model
 from ..epipolar.light_rays.directional import auto_light_rays
-from .projective_rays import ProjectiveLightRays
 
 
 #: the rectification of an image is at least as fine as for this long side [px]
@@ -82,7 +81,7 @@ def far_depth(params, cap) -> float:
 def texel_size(rays):
     """Width of every texel (projective map), or 1 (equal widths per row,
     which cancel in a weighted average)."""
-    return rays.widths() if isinstance(rays, ProjectiveLightRays) else 1.0
+    return rays.texel_weights()
 
 
 def auto_texels(params, queries, cap) -> int:

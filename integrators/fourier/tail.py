@@ -43,7 +43,6 @@ import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, two_or_more
 from ..epipolar.last_interval import own_ray_visibility
-from ..epipolar.light_rays.layout import EqualLightRays
 
 
 #: longest run of texels behind the last visibility change that is traced
@@ -158,7 +157,7 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
     """Trace the short runs behind each query's last visibility change
     (module doc); None for layouts without equal light rays (the
     projective map)."""
-    if not isinstance(rays, EqualLightRays) or not queries.count:
+    if not rays.equal_widths or not queries.count:
         return None
     first, k0 = tail_runs(queries, beta_b, cover, longest)
     run = first != NO_RUN

@@ -176,14 +176,6 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
     return h_ref
 
 
-def rectified_depth(queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
-    """D (n, r): each query's depth as a fractional light-ray index (§5),
-    ``(γ_end − γ_lo) / Δγ`` (clipped to [0, d] by the sweep)."""
-    D = ((queries.gamma_end - rays.start(queries.row))
-         / dr.gather(mi.Float, rays.delta_gamma, queries.row))
-    return mi.TensorXf(queries.padded(D, 0.0), shape=(queries.n, queries.r))
-
-
 def axial_exit(params, x, w):
     """(h, hits): axial coordinate where the line x + u·w leaves the medium
     box toward the light, and whether the line meets the box at all."""

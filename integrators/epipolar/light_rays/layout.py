@@ -21,9 +21,17 @@ class LightRayLayout:
     row, the sweep's leaves), ``gamma_max`` (n,) (each row's last γ) and
     ``delta_gamma`` (n,) (each row's light-ray width; the mean width where
     they are unequal), and the methods :meth:`lanes`, :meth:`positions` and
-    :meth:`row_counts`.  Layouts: :class:`LightRays` (directional),
+    :meth:`row_counts`, and what a stage asks of any layout instead of
+    testing its type: :attr:`equal_widths`, :meth:`query_depth`,
+    :meth:`texel_weights`, :meth:`own_kernel` and :meth:`read_blockers`.
+    Layouts: :class:`LightRays` (directional),
     :class:`~integrators.epipolar.light_rays.local.LocalLightRays` (point/spot),
     :class:`~integrators.fourier.projective_rays.ProjectiveLightRays` (Klehm §4.2)."""
+
+    #: whether every row's light rays are equally wide (from ``γ_lo``, see
+    #: :class:`EqualLightRays`): what sub-rays, geometric kernel steps and
+    #: traced ends need
+    equal_widths = False
 
     def lanes(self, per_ray: int = 1):
         """(row s, light ray g, sub-ray m) of ``n·d·per_ray`` lanes."""
@@ -41,12 +49,43 @@ class LightRayLayout:
         """(n,) light rays that exist per row, or None: all ``d``."""
         return None
 
+    def query_depth(self, queries) -> mi.Float:
+        """D (Q,): each query's end point as a fractional light-ray index
+        (§5; clipped to [0, d] by its users)."""
+        raise NotImplementedError
+
+    def texel_weights(self):
+        """(n·d,) weight of each light ray in a row's average: its width,
+        or 1 where a row's light rays are equally wide (the widths cancel)."""
+        return 1.0
+
+    def own_kernel(self, sigma_t: float):
+        """``K(texel, tan(β/2))`` where the layout fixes the kernel of a
+        light ray itself (unequal texels: their exact integral), else None:
+        the light model's ``ray_kernel``."""
+        return None
+
+    def read_blockers(self, read, params, queries, *args, **kw) -> mi.Float:
+        """β_b of every light ray: ``read(params, queries, rays, *args)``,
+        the light model's traced or resampled blockers."""
+        return read(params, queries, self, *args, **kw)
+
+
+def rectified_depth(queries, rays: "EqualLightRays") -> mi.TensorXf:
+    """D (n, r): each query's depth as a fractional light-ray index (§5),
+    ``(γ_end − γ_lo) / Δγ`` (clipped to [0, d] by the sweep)."""
+    D = ((queries.gamma_end - rays.start(queries.row))
+         / dr.gather(mi.Float, rays.delta_gamma, queries.row))
+    return mi.TensorXf(queries.padded(D, 0.0), shape=(queries.n, queries.r))
+
 
 class EqualLightRays(LightRayLayout):
     """Equally wide light rays from each row's ``γ_lo``: leaf ``g`` covers
     ``γ_lo + [g, g+1)·Δγ``.  Adds the field ``gamma_lo`` ((n,) or None: 0)
     and :meth:`start`; what the sub-ray, rectified-depth and blocker-mode
     functions need."""
+
+    equal_widths = True
 
     def start(self, s) -> mi.Float:
         """γ_lo of rows ``s`` (0 when the rows start at the axis)."""
@@ -57,3 +96,6 @@ class EqualLightRays(LightRayLayout):
     def positions(self, offset: float = 0.5):
         s, g, _ = self.lanes()
         return s, self.start(s) + (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
+
+    def query_depth(self, queries) -> mi.Float:
+        return dr.gather(mi.Float, rectified_depth(queries, self).array, queries.slot)
