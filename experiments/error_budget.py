@@ -162,7 +162,7 @@ def timed(scene, integrator, repeats):
 
 def explicit(method, setting, diagonal) -> dict:
     """Integrator properties of a sweep setting (the tree's density -> light rays)."""
-    from integrators.core.quality_auto import light_rays_of
+    from integrators.tree.quality import light_rays_of
 
     s = dict(setting)
     if "density" in s:

@@ -9,11 +9,13 @@ partial-sum tree).  The shared rectified maps live in
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
 from .core.capture import capture_shadow_map
 from .core.properties import read_bool, read_choice, read_number
+from .core.quality_auto import register_rule
 from .epipolar.blockers import blocker_modes
 from .epipolar.last_interval import (last_interval_correction, last_interval_visibility,
                                      sweep_magnitude, unresolved_samples)
@@ -24,6 +26,7 @@ from .epipolar.query_terms import assemble_queries, first_leaf_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
 from .tree.partial_sum_tree import integrate_slices
+from .tree.quality import TREE_RULE
 
 
 @dataclass(frozen=True, eq=False)
@@ -311,4 +314,5 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                 f"blockers={self.blockers}, output={self.output}]")
 
 
+register_rule("epipolar_tree", TREE_RULE)
 mi.register_integrator("epipolar_tree", lambda props: EpipolarTreeIntegrator(props))

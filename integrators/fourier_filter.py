@@ -8,12 +8,14 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, auto_splits, frustum_axis_angle,
                                 projective_columns, projective_rectification, projective_rows)
 
 from .core.capture import capture_shadow_map
 from .core.opaque import two_or_more
 from .core.properties import read_bool, read_choice, read_number
+from .core.quality_auto import register_rule
 from .epipolar.frame import choose_slices, epipolar_frame_of
 from .epipolar.light_models import light_model
 from .epipolar.query_terms import assemble_queries
@@ -22,15 +24,16 @@ from .fourier.exact import exact_sums
 from .fourier.prefilter import region_length
 from .fourier.projective_rays import (ProjectiveLightRays, projective_light_rays,
                                       projective_query_terms, projective_x_range,
-                                       texel_separated_kernel)
-from .fourier.rectified_map import (Coverage, DEPTH_RANGES, FilterSettings, REFERENCES,
-                                    class_sums, near_band, near_step_weight, prefilter_rows,
+                                      texel_separated_kernel)
+from .fourier.quality import FILTER_RULE
+from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings, class_sums,
+                                    near_band, near_step_weight, prefilter_rows,
                                     rectified_shadow_map, series_sum, series_unreliable,
                                     series_visibility)
 from .fourier.references import interpolated_sum, reference_rays, restrict_rows, row_kernel
 from .fourier.rows import ProjectivePlan, auto_texels, far_depth, row_spacing, texel_size
-from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility,
-                           reference_kernel, row_shift, unshadowed_band)
+from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
+                           row_shift, unshadowed_band)
 from .fourier.tail import tail_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -595,4 +598,5 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 f"slices={self.slices}, light_rays={self.light_rays}, output={self.output}]")
 
 
+register_rule("fourier_filter", FILTER_RULE)
 mi.register_integrator("fourier_filter", lambda props: FourierFilterIntegrator(props))

@@ -6,19 +6,23 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify import ring_mask
 
 from .core.capture import capture_shadow_map
 from .core.opaque import two_or_more
 from .core.properties import read_bool, read_choice, read_number
+from .core.quality_auto import register_rule
 from .epipolar.ring import RING_BISECTIONS
 from .minmax.integrate import integrate_samples
 from .minmax.light_rays import MAX_ENTRY_EXPONENT, light_top, slice_light_rays, texel_count
 from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
 from .minmax.profiles import METHOD_PROFILES, PROFILES, TALK_METHOD, profile_settings
+from .minmax.quality import MINMAX_RULE
 from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial_samples,
                                 inscattering_breaks, interpolate, interpolation_sources,
                                 visibility_midpoints)
@@ -455,4 +459,5 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 f"blockers={self.blockers}, output={self.output}]")
 
 
+register_rule("minmax_epipolar", MINMAX_RULE)
 mi.register_integrator("minmax_epipolar", lambda props: MinMaxEpipolarIntegrator(props))

@@ -48,8 +48,10 @@ import mitsuba as mi
 
 from .core.capture import capture_shadow_map
 from .core.hybrid_march import shadow_range
+from .core.march_quality import MARCH_RULE
 from .core.marching import auto_spacing, march, march_bisected
 from .core.properties import read_bool, read_choice, read_number
+from .core.quality_auto import register_rule
 from .template.base import EpiscatterIntegrator
 
 
@@ -109,4 +111,5 @@ class RaymarchIntegrator(EpiscatterIntegrator):
             return march_bisected(params, cap, self.steps, self.boundary_bisections, spacing)
         return march(params, cap, self.steps, shadow_map, self.jitter, self.render_record.seed,
                      spacing, t_range)
+register_rule("raymarch", MARCH_RULE)
 mi.register_integrator("raymarch", lambda props: RaymarchIntegrator(props))

@@ -10,6 +10,10 @@ import numpy as np
 import pytest
 
 from integrators.core import quality_auto as qa
+from integrators.core import march_quality as rq
+from integrators.tree import quality as tq
+from integrators.fourier import quality as fq
+from integrators.minmax import quality as mq
 
 METHODS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
 
@@ -45,7 +49,7 @@ def test_auto_needs_a_rule(monkeypatch):
 
 @pytest.mark.parametrize("e1, e2", [(7.8e-4, 2.3e-4), (5.7e-5, 4.6e-6), (1e-4, 1e-4), (0.0, 0.0)])
 def test_minmax_step_shrinks_with_the_budget(e1, e2):
-    steps = [qa.minmax_step(e1, e2, b) for b in BUDGETS]
+    steps = [mq.minmax_step(e1, e2, b) for b in BUDGETS]
     assert steps == sorted(steps, reverse=True)
 
 
@@ -53,8 +57,8 @@ def test_minmax_step_meets_a_power_law():
     """Errors C s^1.5 at the probe's steps: the chosen s is the largest
     candidate with C s^1.5 <= SAFETY * budget."""
     C = 1e-6
-    s1, s2 = qa.MINMAX_PROBE
-    s = qa.minmax_step(C * s1 ** 1.5, C * s2 ** 1.5, 2e-5)
+    s1, s2 = mq.MINMAX_PROBE
+    s = mq.minmax_step(C * s1 ** 1.5, C * s2 ** 1.5, 2e-5)
     assert C * s ** 1.5 <= qa.SAFETY * 2e-5 < C * (2 * s) ** 1.5
 
 
@@ -63,38 +67,38 @@ BUDGETS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 1e-6)
 
 @pytest.mark.parametrize("e1, e2", [(1e-3, 2.5e-4), (1e-4, 9e-5), (1e-2, 1e-4), (0.0, 0.0)])
 def test_march_steps_grow_as_the_budget_shrinks(e1, e2):
-    steps = [qa.march_steps(e1, e2, b) for b in BUDGETS]
+    steps = [rq.march_steps(e1, e2, b) for b in BUDGETS]
     assert steps == sorted(steps)
 
 
 def test_march_steps_meet_a_power_law():
     """Errors C n^-2 at the probe's steps: the chosen n has C n^-2 = SAFETY * budget."""
     C = 3.0
-    n1, n2 = qa.MARCH_PROBE
-    n = qa.march_steps(C * n1 ** -2.0, C * n2 ** -2.0, 1e-5)
+    n1, n2 = rq.MARCH_PROBE
+    n = rq.march_steps(C * n1 ** -2.0, C * n2 ** -2.0, 1e-5)
     assert C * n ** -2.0 == pytest.approx(qa.SAFETY * 1e-5, rel=0.02)
 
 
 @pytest.mark.parametrize("e1, e2", [(1e-3, 9e-4), (1e-4, 2e-5), (3e-5, 3e-5), (1e-6, 1e-7)])
 def test_tree_choice_is_monotone_in_the_budget(e1, e2):
     fit = qa.FIT["epipolar_tree"]
-    A, B = qa.tree_model(e1, e2)
-    s0, r0, _ = qa.TREE_PROBE
+    A, B = tq.tree_model(e1, e2)
+    s0, r0, _ = tq.TREE_PROBE
     pred = [A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
-            for s, r in (qa.tree_choice(e1, e2, b) for b in BUDGETS)]
+            for s, r in (tq.tree_choice(e1, e2, b) for b in BUDGETS)]
     assert all(p2 <= p1 * (1 + 1e-12) for p1, p2 in zip(pred, pred[1:]))
 
 
 def filter_prediction(e1, e2, settings):
     """The rule's modelled relMSE of ``settings`` (exact weights: the series term)."""
-    F, C = qa.filter_model(e1, e2)
+    F, C = fq.filter_model(e1, e2)
     series = C * settings["coefficients"] ** qa.FIT["fourier_filter"]["k"]
     return series if settings.get("weights") == "exact" else F + series
 
 
 @pytest.mark.parametrize("e1, e2", [(1e-3, 3e-4), (1e-4, 1e-4), (2e-3, 1e-5)])
 def test_filter_prediction_shrinks_with_the_budget(e1, e2):
-    pred = [filter_prediction(e1, e2, qa.filter_settings(e1, e2, b)) for b in BUDGETS]
+    pred = [filter_prediction(e1, e2, fq.filter_settings(e1, e2, b)) for b in BUDGETS]
     assert all(p2 <= p1 * (1 + 1e-12) for p1, p2 in zip(pred, pred[1:]))
 
 
@@ -111,13 +115,13 @@ class FixedProbe:
 
 def test_tree_model_recovers_both_terms_from_any_second_setting():
     fit = qa.FIT["epipolar_tree"]
-    s0, r0, _ = qa.TREE_PROBE
+    s0, r0, _ = tq.TREE_PROBE
     A, B = 2e-4, 5e-5
     for s2, r2 in ((1.0, 2.0), (s0, 4 * r0), (0.5, 0.5), (4.0, 8.0)):
         e2 = A * (s2 / s0) ** fit["a"] + B * (r2 / r0) ** -fit["b"]
-        assert qa.tree_model(A + B, e2, second=(s2, r2)) == pytest.approx((A, B), rel=1e-9)
+        assert tq.tree_model(A + B, e2, second=(s2, r2)) == pytest.approx((A, B), rel=1e-9)
     # both terms scaled alike: not separable, each gets the whole error
-    assert qa.tree_model(1e-4, 1e-4, second=(s0, r0)) == (1e-4, 1e-4)
+    assert tq.tree_model(1e-4, 1e-4, second=(s0, r0)) == (1e-4, 1e-4)
 
 
 def test_tree_renders_its_prediction_second_and_keeps_it_when_it_meets_the_target():
@@ -125,30 +129,30 @@ def test_tree_renders_its_prediction_second_and_keeps_it_when_it_meets_the_targe
     the setting predicted from that error alone, and its error (1e-6) meets
     the target, so it is the answer (and its probe render can be reused)."""
     probe = FixedProbe([1e-3, 1e-6])
-    got = qa.choose_tree(probe, 1e-5)
+    got = tq.choose_tree(probe, 1e-5)
     first = qa.probe_settings("epipolar_tree", probe.diagonal)[0]
     assert probe.asked[0] == first and probe.asked[1] == got != first
-    s, r = qa.tree_choice_of(1e-3, 1e-3, 1e-5)
-    assert got == qa.tree_settings(s, r, probe.diagonal)
+    s, r = tq.tree_choice_of(1e-3, 1e-3, 1e-5)
+    assert got == tq.tree_settings(s, r, probe.diagonal)
     # when the prediction misses too, the model through both errors decides
     probe = FixedProbe([1e-3, 4e-5])
-    got = qa.choose_tree(probe, 1e-5)
-    assert probe.asked[1] == qa.tree_settings(s, r, probe.diagonal)
-    assert got == qa.tree_settings(*qa.tree_choice(1e-3, 4e-5, 1e-5, second=(s, r)),
+    got = tq.choose_tree(probe, 1e-5)
+    assert probe.asked[1] == tq.tree_settings(s, r, probe.diagonal)
+    assert got == tq.tree_settings(*tq.tree_choice(1e-3, 4e-5, 1e-5, second=(s, r)),
                                    probe.diagonal)
 
 
 def test_filter_renders_its_prediction_second():
-    m1 = qa.FILTER_PROBE[0]
+    m1 = fq.FILTER_PROBE[0]
     k = qa.FIT["fourier_filter"]["k"]
-    m2 = qa.predicted_coefficients(1e-4, 1e-5)
+    m2 = fq.predicted_coefficients(1e-4, 1e-5)
     assert m2 > m1 and 1e-4 * (m2 / m1) ** k <= qa.SAFETY * 1e-5
-    assert qa.predicted_coefficients(1.0, 1e-5) == qa.FILTER_COEFFICIENTS[-1]
+    assert fq.predicted_coefficients(1.0, 1e-5) == fq.FILTER_COEFFICIENTS[-1]
     probe = FixedProbe([1e-4, 1e-6])
-    assert qa.choose_filter(probe, 1e-5) == {"coefficients": m2} == probe.asked[1]
+    assert fq.choose_filter(probe, 1e-5) == {"coefficients": m2} == probe.asked[1]
     F, C = 2e-5, 0.4
     e = [F + C * m ** k for m in (m1, 64)]
-    assert qa.filter_model(*e, m2=64) == pytest.approx((F, C), rel=1e-9)
+    assert fq.filter_model(*e, m2=64) == pytest.approx((F, C), rel=1e-9)
 
 
 def test_filter_floor_above_the_budget_switches_to_exact_weights():
@@ -156,9 +160,9 @@ def test_filter_floor_above_the_budget_switches_to_exact_weights():
     reference-ray weights level off at relMSE 4.6e-5 whatever the
     coefficients, so a 1e-5 budget needs weights='exact' (the rule used to
     return 16 coefficients, 5x over the budget)."""
-    got = qa.RULES["fourier_filter"]["choose"](FixedProbe([4.61e-5, 4.17e-5]), 1e-5)
+    got = qa.RULES["fourier_filter"].choose(FixedProbe([4.61e-5, 4.17e-5]), 1e-5)
     assert got.get("weights") == "exact"
-    assert "weights" not in qa.RULES["fourier_filter"]["choose"](
+    assert "weights" not in qa.RULES["fourier_filter"].choose(
         FixedProbe([4.61e-5, 4.17e-5]), 1e-4)
 
 
@@ -175,7 +179,7 @@ def test_auto_render_equals_the_explicit_render_of_its_choice(make_scene, method
     auto = mi.load_dict({"type": method, "quality": "auto", "error_budget": 1e-4})
     res = auto.render_layers(scene, spp=1)
     settings = res.stats["auto_settings"]
-    assert set(settings) <= set(qa.RULES[method]["knobs"])
+    assert set(settings) <= set(qa.RULES[method].knobs)
     assert res.stats["auto_probe_s"] > 0 and res.timings["probe"] > 0
     assert len(res.stats["auto_probe"]) >= 1
     same = mi.load_dict({"type": method, **settings}).render_layers(scene, spp=1)
@@ -267,3 +271,21 @@ def test_held_out_scenes_are_shafts_the_cycle_never_draws():
         spec = rs.random_scene(seed, "shafts")
         assert 0.3 <= spec.sigma_t * spec.box_half <= 30.0
         assert 3 <= len(spec.occluders) <= 8
+
+
+def test_every_plugin_registers_its_own_rule():
+    """The rules live with their methods (core/march_quality, tree/, fourier/,
+    minmax/ quality modules); each plugin module registers its own, so the
+    template and the probe know no method by name."""
+    import inspect
+
+    from integrators.template import base
+
+    assert sorted(qa.RULES) == ["epipolar_tree", "fourier_filter", "minmax_epipolar", "raymarch"]
+    for method, rule in qa.RULES.items():
+        assert rule.fit is qa.FIT[method]
+        assert len(rule.probe(500.0)) == 2 and all(k in rule.knobs for k in rule.probe(500.0)[0])
+    for module in (qa, base):
+        source = inspect.getsource(module)
+        assert not any(f'"{m}"' in source for m in ("epipolar_tree", "fourier_filter",
+                                                      "minmax_epipolar")), module.__name__

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

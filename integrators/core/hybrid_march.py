@@ -15,7 +15,6 @@ the plain marcher's with exact visibility, step for step.
 """
 from __future__ import annotations
 
-
 from .shadow_volumes import ShadowVolumes, clip_segments, occluders, shape_boxes
 
 

@@ -21,7 +21,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .opaque import colour as color, point, scalar, vector
+from .opaque import colour as color
+from .opaque import point, scalar, vector
 
 
 #: relative offset used to stop shadow rays short of the medium box.

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import math
 from typing import NamedTuple
+
 import drjit as dr
 import mitsuba as mi
 
 from .capture import sample_rng, seed_offset
 from .light_transport import (color, light_transmittance, phase_eval, point, sample_light, scalar,
-                              segment_box, segment_weight, vector, visible_confirmed,
-                              visible_exact)
+                              segment_box, segment_weight, vector, visible_confirmed, visible_exact)
 from .opaque import reciprocal
 
 

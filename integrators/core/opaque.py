@@ -24,6 +24,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify._dr import aligned, const, const_u32, opaque_scalar, shared_scalars  # noqa: F401
 
 

@@ -23,33 +23,14 @@ constants in :data:`FIT`), turns the probe's errors into a prediction for
 every candidate setting; the rule takes the cheapest candidate predicted
 to meet ``SAFETY * error_budget`` (the most accurate one when none is).
 
-* ``raymarch`` (exact visibility, Baran 2010 §2's reference marcher):
-  relMSE = C·n^k in the steps n; the probe marches the subset at
-  :data:`MARCH_PROBE` steps, which gives the scene's own C and k (k
-  clamped to ``FIT["raymarch"]["k_range"]``).
-* ``epipolar_tree`` (Baran 2010 §8 slices, §7 light rays): relMSE =
-  A·(s/s₀)^a + B·(ρ/ρ₀)^-b in the slice spacing s [px] and the light-ray
-  density ρ (light rays per slice over the image diagonal in pixels; the
-  light-ray term is the tree's error floor at fixed light rays); the probe
-  renders (s₀, ρ₀), then -- unless that meets the target -- the setting
-  the model predicts from that error alone (A = B = its error, a
-  conservative split), which is the answer when it meets the target and
-  otherwise separates A and B; time ~ α + β/s + γ·ρ/s (fitted).
-* ``fourier_filter`` (Klehm 2014 §3 truncated Fourier series): relMSE =
-  F + C·M^k in the coefficients M (F: what the series cannot fix, mostly
-  the ``reference_ray`` weights' approximation); the probe renders M = 16
-  with the default weights, then -- unless that meets the target -- the M
-  predicted as if its error were all series (F = 0), which is the answer
-  when it meets the target and otherwise gives F and C.  Where F alone misses the target the
-  rule switches to ``weights="exact"`` (which removes most of F) and picks
-  M from the series term C·M^k alone.
-
-* ``minmax_epipolar`` (Yusov 2013 §3 initial integration samples): relMSE
-  = C·s^k in the initial step s (samples between integration samples);
-  the probe renders s = 16 and 4, which give the scene's C and k (k
-  clamped to ``FIT["minmax_epipolar"]["k_range"]``, set a priori: the
-  suite's frontier runs have no minmax sweep to fit it on); the largest
-  candidate step predicted to meet the target.
+Each method's rule -- its error model, candidates and probe settings --
+lives with the method and is registered by its plugin module
+(:func:`register_rule`, a :class:`QualityRule`):
+:mod:`integrators.core.march_quality` (``raymarch``, exact visibility),
+:mod:`integrators.tree.quality` (``epipolar_tree``: slice spacing and
+light rays), :mod:`integrators.fourier.quality` (``fourier_filter``:
+coefficients and weights), :mod:`integrators.minmax.quality`
+(``minmax_epipolar``: initial step).
 
 Where a probe renders the whole image (tree, filter, minmax), it renders
 its cheaper setting first and stops there when that setting's error
@@ -70,7 +51,9 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Callable
+
 import numpy as np
 
 
@@ -83,28 +66,31 @@ PROBE_PIXELS = 300
 REFERENCE_STEPS = 512
 #: the budget's share the rule aims at (the probe's estimate is noisy)
 SAFETY = 0.5
-#: steps of the marcher's probe
-MARCH_PROBE = (64, 128)
-#: candidate slice spacings [px] and light-ray densities of the tree
-TREE_SPACINGS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
-TREE_DENSITIES = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0)
-#: the tree's probe: slice spacing s0 and densities rho0, 4 rho0
-TREE_PROBE = (2.0, 0.5, 2.0)
-#: candidate coefficients of the filter, and its probe
-FILTER_COEFFICIENTS = (8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
-FILTER_PROBE = (16, 32)
-#: candidate initial steps of minmax_epipolar, and its probe
-MINMAX_STEPS = (1, 2, 4, 8, 16, 32)
-MINMAX_PROBE = (16, 4)
 
-#: constants fitted on results/frontier/quick640 and quick160 (pixel
-#: centres) by ``python -m experiments.error_budget --fit-only``
-FIT = {
-    "raymarch": {"k": -1.99, "k_range": (-4.0, -1.0)},
-    "epipolar_tree": {"a": 1.9, "b": 1.1, "time": (0.543, 0.354, 0.102)},
-    "fourier_filter": {"k": -1.62},
-    "minmax_epipolar": {"k": 1.0, "k_range": (0.5, 3.0)},
-}
+#: method -> its rule (:class:`QualityRule`), registered by each plugin
+#: module with :func:`register_rule`
+RULES: dict = {}
+#: method -> the constants of its error model (its rule's ``fit``)
+FIT: dict = {}
+
+
+@dataclass(frozen=True)
+class QualityRule:
+    """What ``quality="auto"`` needs of a method: the ``knobs`` its rule
+    chooses (refused when given with ``quality="auto"``), the two settings
+    its ``probe`` renders for an image diagonal, the rule ``choose(probe,
+    budget, fit)`` -> settings, and the ``fit`` constants of its error
+    model."""
+    knobs: tuple
+    probe: Callable[[float], list]
+    choose: Callable
+    fit: dict
+
+
+def register_rule(method: str, rule: QualityRule) -> None:
+    """Make ``rule`` the ``quality="auto"`` rule of plugin ``method``."""
+    RULES[method] = rule
+    FIT[method] = rule.fit
 
 
 def read_quality(props) -> tuple[str, float | None]:
@@ -133,7 +119,7 @@ def read_quality(props) -> tuple[str, float | None]:
             not math.isfinite(budget) or budget <= 0:
         raise ValueError(f"Property 'error_budget' = {budget!r} must be a positive relMSE, "
                          "e.g. 1e-4.")
-    given = sorted(k for k in RULES[method]["knobs"] if k in props)
+    given = sorted(k for k in RULES[method].knobs if k in props)
     if given:
         raise ValueError(f"quality='auto' chooses {given} itself: drop them, or drop "
                          "quality='auto' to set them explicitly.")
@@ -235,223 +221,58 @@ def target_of(budget: float) -> float:
 
 
 def probe_settings(method: str, diagonal: float) -> list[dict]:
-    """The two settings the probe of ``method`` renders (module doc), for an
-    image of ``diagonal`` pixels.  The tree's and the filter's rules render
-    the first and, in place of the second, their predicted answer
-    (:func:`choose_tree`, :func:`choose_filter`; the fixed second setting
-    only where there is no prediction); ``experiments.error_budget``
-    measures the probe's estimates on this fixed pair."""
-    if method == "raymarch":
-        return [{"visibility": "exact", "steps": n} for n in MARCH_PROBE]
-    if method == "epipolar_tree":
-        s0, r0, r1 = TREE_PROBE
-        return [{"slice_spacing": s0, "light_rays": light_rays_of(r, diagonal)}
-                for r in (r0, r1)]
-    if method == "fourier_filter":
-        return [{"coefficients": m} for m in FILTER_PROBE]
-    if method == "minmax_epipolar":
-        return [{"initial_step": s} for s in MINMAX_PROBE]
-    raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
+    """The two settings the probe of ``method`` renders (its rule's
+    ``probe``), for an image of ``diagonal`` pixels.  The tree's and the
+    filter's rules render the first and, in place of the second, their
+    predicted answer (the fixed second setting only where there is no
+    prediction); ``experiments.error_budget`` measures the probe's
+    estimates on this fixed pair."""
+    if method not in RULES:
+        raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
+    return RULES[method].probe(diagonal)
 
 
-def probe_errors(probe: Probe, method: str, budget: float):
+def probe_errors(probe: Probe, settings, budget: float):
     """``(first, e1, e2)``: the probe's errors at its two settings of
-    ``method`` (:func:`probe_settings`), the cheaper ``first`` rendered
+    ``settings(diagonal)`` (a rule's probe), the cheaper ``first`` rendered
     first; ``e2`` is None when ``e1`` already meets the target (the second
     setting is then not rendered, and the rule returns ``first``, whose
     render the probe keeps)."""
-    first, second = probe_settings(method, probe.diagonal)
+    first, second = settings(probe.diagonal)
     e1 = probe.error(first)
     if e1 <= target_of(budget):
         return first, e1, None
     return first, e1, probe.error(second)
 
 
-def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
-    """Steps of the exact marcher: relMSE = C n^k through the probe's two
-    step counts (k clamped; the fitted k where the probe sees no error)."""
-    fit = fit or FIT["raymarch"]
-    e1, e2 = (probe.error(p, partial=True) for p in probe_settings("raymarch", probe.diagonal))
-    return {"visibility": "exact", "steps": march_steps(e1, e2, budget, fit)}
 
 
-def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:
-    """Steps n with C n^k = SAFETY·budget, C and k from the errors ``e1``,
-    ``e2`` at :data:`MARCH_PROBE` (module doc)."""
-    fit = fit or FIT["raymarch"]
-    n1, n2 = MARCH_PROBE
-    if not (e2 > 0 and math.isfinite(e2)):
-        return 16
-    k = fit["k"]
-    if e1 > 0 and math.isfinite(e1):
-        k = min(max(math.log(e2 / e1) / math.log(n2 / n1), fit["k_range"][0]), fit["k_range"][1])
-    n = n2 * (target_of(budget) / e2) ** (1.0 / k)
-    return int(min(max(math.ceil(n), 16), 16384))
 
 
-def tree_model(e1: float, e2: float, fit=None, second=None):
-    """(A, B) of relMSE = A (s/s0)^a + B (rho/rho0)^-b from the probe's
-    errors ``e1`` at (s0, rho0) and ``e2`` at ``second`` = (s, rho)
-    (default (s0, 4 rho0), :data:`TREE_PROBE`).  A and B are clamped to
-    >= 0; where the two settings cannot separate them (both terms scale
-    alike), each is given the whole error the probe saw."""
-    fit = fit or FIT["epipolar_tree"]
-    s0, r0, r1 = TREE_PROBE
-    s2, r2 = second if second is not None else (s0, r1)
-    u = (s2 / s0) ** fit["a"]
-    v = (r2 / r0) ** -fit["b"]
-    if abs(v - u) <= 1e-9 * max(u, v):
-        share = max(e1, e2 / u)
-        return share, share
-    B = (e2 - u * e1) / (v - u)
-    if B < 0:
-        return max(e1, e2 / u), 0.0
-    A = e1 - B
-    if A < 0:
-        return 0.0, max(e1, e2 / v)
-    return A, B
 
 
-def tree_choice(e1: float, e2: float, budget: float, fit=None, second=None):
-    """(slice_spacing, density) of least modelled time meeting the target
-    (the most accurate candidate if none does), the model through the
-    probe's errors (:func:`tree_model`)."""
-    return tree_choice_of(*tree_model(e1, e2, fit, second), budget, fit)
 
 
-def tree_choice_of(A: float, B: float, budget: float, fit=None):
-    """:func:`tree_choice` for the model's terms ``A`` and ``B``."""
-    fit = fit or FIT["epipolar_tree"]
-    s0, r0, _ = TREE_PROBE
-    al, be, ga = fit["time"]
-    best, most = None, None
-    for s in TREE_SPACINGS:
-        for r in TREE_DENSITIES:
-            err = A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
-            t = al + be / s + ga * r / s
-            if err <= target_of(budget) and (best is None or t < best[0]):
-                best = (t, s, r)
-            if most is None or (err, t) < most[0]:
-                most = ((err, t), s, r)
-    return (best[1], best[2]) if best else (most[1], most[2])
 
 
-def light_rays_of(density: float, diagonal: float) -> int:
-    return int(min(max(round(density * diagonal), 32), 32767))
 
 
-def tree_settings(s: float, r: float, diagonal: float) -> dict:
-    return {"slice_spacing": s, "light_rays": light_rays_of(r, diagonal)}
 
 
-def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
-    """Slice spacing and light rays of the tree (module doc): the first probe
-    setting if it meets the target; else the setting predicted from its
-    error alone (both terms of the model given all of it), rendered as the
-    second probe and returned if it meets the target; else the choice of
-    the model through both."""
-    first = probe_settings("epipolar_tree", probe.diagonal)[0]
-    e1 = probe.error(first)
-    if e1 <= target_of(budget):
-        return first
-    s2, r2 = tree_choice_of(e1, e1, budget, fit)
-    second = tree_settings(s2, r2, probe.diagonal)
-    if second == first:                  # no prediction beyond it: the fixed second probe
-        second = probe_settings("epipolar_tree", probe.diagonal)[1]
-        s2, r2 = TREE_PROBE[0], TREE_PROBE[2]
-    e2 = probe.error(second)
-    if e2 <= target_of(budget):
-        return second
-    return tree_settings(*tree_choice(e1, e2, budget, fit, (s2, r2)), probe.diagonal)
 
 
-def filter_model(e1: float, e2: float, fit=None, m2: int | None = None) -> tuple[float, float]:
-    r"""(F, C) of relMSE = F + C M^k through the probe's errors ``e1`` at
-    M = :data:`FILTER_PROBE`\ [0] and ``e2`` at ``m2`` (default
-    :data:`FILTER_PROBE`\ [1]) (module doc)."""
-    fit = fit or FIT["fourier_filter"]
-    m1 = FILTER_PROBE[0]
-    m2 = m2 or FILTER_PROBE[1]
-    k = fit["k"]
-    C = max((e1 - e2) / (m1 ** k - m2 ** k), 0.0)
-    return max(e2 - C * m2 ** k, 0.0), C
 
 
-def filter_settings(e1: float, e2: float, budget: float, fit=None, m2: int | None = None) -> dict:
-    """Coefficients M (and weights) of the filter: the smallest candidate
-    with F + C M^k within the target; where the floor F alone misses it,
-    ``weights="exact"`` and the smallest M with C M^k within it (the most
-    coefficients when none is)."""
-    fit = fit or FIT["fourier_filter"]
-    k = fit["k"]
-    F, C = filter_model(e1, e2, fit, m2)
-    for M in FILTER_COEFFICIENTS:
-        if F + C * M ** k <= target_of(budget):
-            return {"coefficients": M}
-    for M in FILTER_COEFFICIENTS:
-        if C * M ** k <= target_of(budget):
-            return {"coefficients": M, "weights": "exact"}
-    return {"coefficients": FILTER_COEFFICIENTS[-1], "weights": "exact"}
 
 
-def predicted_coefficients(e1: float, budget: float, fit=None) -> int:
-    """The second probe's M: the smallest candidate above the first probe's
-    M whose series term C M^k meets the target if all of the first probe's
-    error ``e1`` is series (F = 0)."""
-    fit = fit or FIT["fourier_filter"]
-    m1 = FILTER_PROBE[0]
-    above = [M for M in FILTER_COEFFICIENTS if M > m1]
-    for M in above:
-        if e1 * (M / m1) ** fit["k"] <= target_of(budget):
-            return M
-    return above[-1]
 
 
-def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
-    """Coefficients and weights of the filter (module doc): the first probe
-    setting if it meets the target; else the M predicted from its error
-    alone (:func:`predicted_coefficients`), rendered as the second probe
-    and returned if it meets the target; else the model through both."""
-    first = probe_settings("fourier_filter", probe.diagonal)[0]
-    e1 = probe.error(first)
-    if e1 <= target_of(budget):
-        return first
-    m2 = predicted_coefficients(e1, budget, fit)
-    e2 = probe.error({"coefficients": m2})
-    if e2 <= target_of(budget):
-        return {"coefficients": m2}
-    return filter_settings(e1, e2, budget, fit, m2)
 
 
-def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
-    """Initial step s with C s^k within the target, C and k through the
-    errors ``e1``, ``e2`` at :data:`MINMAX_PROBE` (k clamped; the largest
-    candidate predicted to meet it, else 1)."""
-    fit = fit or FIT["minmax_epipolar"]
-    s1, s2 = MINMAX_PROBE
-    if not (e2 > 0 and math.isfinite(e2)):
-        return s2 if e2 == 0 else 1
-    k = fit["k"]
-    if e1 > 0 and math.isfinite(e1):
-        k = min(max(math.log(e1 / e2) / math.log(s1 / s2), fit["k_range"][0]), fit["k_range"][1])
-    ok = [s for s in MINMAX_STEPS if e2 * (s / s2) ** k <= target_of(budget)]
-    return max(ok) if ok else MINMAX_STEPS[0]
 
 
-def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
-    """Initial step of the min/max method (module doc)."""
-    first, e1, e2 = probe_errors(probe, "minmax_epipolar", budget)
-    return first if e2 is None else {"initial_step": minmax_step(e1, e2, budget, fit)}
 
 
-#: method -> the knobs its rule chooses and the rule (probe, budget) -> settings
-RULES = {
-    "raymarch": {"knobs": ("steps", "visibility"), "choose": choose_raymarch},
-    "epipolar_tree": {"knobs": ("slice_spacing", "light_rays", "slices"),
-                      "choose": choose_tree},
-    "fourier_filter": {"knobs": ("coefficients", "weights"), "choose": choose_filter},
-    "minmax_epipolar": {"knobs": ("initial_step",), "choose": choose_minmax},
-}
 
 
 def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0, seed=0):
@@ -470,7 +291,7 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
         raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
     t0 = time.perf_counter()
     probe = Probe(scene, sensor, method, base or {}, seed=seed)
-    settings = RULES[method]["choose"](probe, float(budget))
+    settings = RULES[method].choose(probe, float(budget), None)
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
                       "auto_probe_pixels": int(len(probe.pixels))}, probe
 

@@ -11,8 +11,10 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+
 import mitsuba as mi
 import numpy as np
+
 from rectify.camera import CameraParams
 
 

@@ -6,6 +6,7 @@ the hybrid march and by the change mask of animations.
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

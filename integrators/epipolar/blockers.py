@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import math
 from typing import NamedTuple
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.coords import light_coords_to_world
 from rectify.epipole import EpipolarFrame
 

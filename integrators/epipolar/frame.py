@@ -4,8 +4,10 @@ al. 2010 §3) and the epipole ring (§6).
 from __future__ import annotations
 
 import math
+
 import drjit as dr
 import mitsuba as mi
+
 from rectify.epipole import EpipolarFrame, directional_frame, point_frame
 from rectify.slices import Slices, make_slices
 

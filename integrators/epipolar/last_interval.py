@@ -5,8 +5,10 @@ and the samples the sweep cannot resolve (DESIGN §3).
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
+
 from rectify.coords import ray_meeting_t
 
 from ..core.capture import CameraCapture

@@ -4,8 +4,10 @@ light or resampled from a perspective shadow map (Baran et al. 2010 §9).
 from __future__ import annotations
 
 import math
+
 import drjit as dr
 import mitsuba as mi
+
 from rectify.coords import direction_to_alpha_beta
 
 from ..core.light_transport import first_blocker, point, scalar

@@ -5,6 +5,7 @@ light's query terms (Baran et al. 2010 §9; DESIGN §1).
 from __future__ import annotations
 
 import math
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.coords import direction_to_alpha_beta, view_to_light
 from rectify.epipole import EpipolarFrame
 from rectify.slices import Slices, alpha_to_slice

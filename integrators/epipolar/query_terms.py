@@ -5,13 +5,14 @@ assembly with the rectified sum (Baran et al. 2010 §4 Eq. 3; DESIGN §1).
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
 from ..core.capture import CameraCapture
 from ..core.light_transport import color, phase_eval, point, sample_light, segment_weight, vector
 from .blockers import BlockerModes, leaf_visibility
-from .last_interval import LastInterval, SWEEP_RESIDUE_EPS
+from .last_interval import SWEEP_RESIDUE_EPS, LastInterval
 from .light_rays.directional import LightRays, axial_exit
 from .queries import EpipolarQueries
 

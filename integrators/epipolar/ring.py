@@ -5,9 +5,11 @@ samples where neighbouring methods disagree.
 from __future__ import annotations
 
 import math
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.coords import direction_to_alpha_beta
 
 from ..core.capture import CameraCapture

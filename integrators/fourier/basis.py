@@ -99,6 +99,7 @@ functions are slow NumPy oracles (float64, direct sums, no prefix sums).
 from __future__ import annotations
 
 import math
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

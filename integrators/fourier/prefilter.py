@@ -7,6 +7,7 @@ from __future__ import annotations
 import statistics
 import time
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.projective import ProjectiveColumns, ProjectiveRows
 
 from ..core.light_transport import color, segment_weight

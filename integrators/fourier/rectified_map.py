@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

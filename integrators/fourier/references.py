@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

@@ -15,9 +15,11 @@ samples at most; the cost is texels per row.
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.epipole import EpipolarFrame
 from rectify.projective import ProjectiveRectification, ProjectiveRows
 

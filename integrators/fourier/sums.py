@@ -5,6 +5,7 @@ unshadowed band, the reference kernel and the near visibility
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

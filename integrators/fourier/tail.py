@@ -37,6 +37,7 @@ NumPy oracle of the run search: :func:`tail_run_reference`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

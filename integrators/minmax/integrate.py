@@ -6,8 +6,10 @@ trees"), each lit section closed-form (directional) or from the table
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
+
 from rectify import view_to_light
 
 from ..core.light_transport import color, first_blocker, phase_eval

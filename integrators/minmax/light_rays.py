@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify import EpipolarFrame, light_coords_to_world, view_to_light
 
 from ..core.light_transport import color, first_blocker, sample_light, segment_box

@@ -51,12 +51,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify import EpipolarFrame, ray_meeting_t, view_to_light
 
-from ..core.opaque import colour as opaque_colour, floats, scalar
+from ..core.opaque import colour as opaque_colour
+from ..core.opaque import floats, scalar
 from .light_rays import SliceLightRays
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

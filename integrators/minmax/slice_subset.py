@@ -35,14 +35,15 @@ the whole frame.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ..core.opaque import uints
+from ..partial.row_subset import moved_slices, put_rows, same_slices
 from .slices_and_samples import EpipolarSamples, SampleLayout
 from .unwarp import pixel_slices
-from ..partial.row_subset import moved_slices, put_rows, same_slices
 
 
 @dataclass(frozen=True, eq=False)

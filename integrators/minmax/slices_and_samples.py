@@ -22,11 +22,13 @@ Sampling: Sample generation" and "improved sample placement").
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-from rectify import BetaGrid, EpipolarFrame, Slices, grid_directions, per_slice_beta_grid
-from rectify import project_direction, slice_segments
+
+from rectify import (BetaGrid, EpipolarFrame, Slices, grid_directions, per_slice_beta_grid,
+                     project_direction, slice_segments)
 
 from ..core.capture import first_surface
 from ..core.light_transport import box_exit_distance

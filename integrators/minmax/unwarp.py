@@ -24,8 +24,10 @@ value.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
+
 from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 
 from ..core.capture import CameraCapture

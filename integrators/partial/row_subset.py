@@ -29,9 +29,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.coords import direction_to_alpha_beta_reference
 
 from ..core.light_transport import scalar

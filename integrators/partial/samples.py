@@ -5,6 +5,7 @@ and scattering into the previous frame's (DESIGN §4).
 from __future__ import annotations
 
 from dataclasses import replace
+
 import drjit as dr
 import mitsuba as mi
 

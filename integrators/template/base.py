@@ -67,6 +67,7 @@ import time
 from collections.abc import Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+
 import drjit as dr
 import mitsuba as mi
 

@@ -84,6 +84,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify._dr import aligned
 
 from ..core.opaque import Divisor

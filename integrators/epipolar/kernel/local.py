@@ -18,17 +18,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ...core.light_transport import phase_eval, scalar
 from ...core.opaque import Divisor, floats
+from ..light_rays.local import LocalLightRays, light_ray_range
+from ..queries import EpipolarQueries
 from .separation import SeparatedChannel
 from .svd import log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
-from ..light_rays.local import LocalLightRays, light_ray_range
-from ..queries import EpipolarQueries
 
 
 # --------------------------------------------------------------------------

@@ -17,14 +17,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ...core.opaque import Divisor, floats, scalar_u32
+from ..light_factor import gray, light_side_extinction, light_side_gains
 from .svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
-from ..light_factor import gray, light_side_extinction, light_side_gains
 
 
 # --------------------------------------------------------------------------

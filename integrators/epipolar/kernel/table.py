@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from typing import Callable
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np

@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
 from rectify.coords import light_coords_to_world
 
 from ...core.light_transport import point, scalar, slabs, vector
-from .layout import EqualLightRays
 from ..queries import EpipolarQueries, row_alpha
+from .layout import EqualLightRays
 
 
 #: most light rays per slice the automatic choice takes

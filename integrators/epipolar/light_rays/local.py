@@ -6,14 +6,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ...core.light_transport import point, scalar, slabs, vector
+from ..queries import EpipolarQueries
 from .directional import MIN_AUTO_LIGHT_RAYS, light_ray_count, row_gamma_end
 from .layout import EqualLightRays
-from ..queries import EpipolarQueries
 
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)

@@ -1,0 +1,52 @@
+"""The ``quality="auto"`` rule of ``raymarch`` (exact visibility, Baran 2010
+§2's reference marcher): relMSE = C·n^k in the steps n; the probe marches
+the subset at :data:`MARCH_PROBE` steps, which gives the scene's own C and k
+(k clamped to ``FITTED["k_range"]``).
+
+The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
+the plugin registers :data:`MARCH_RULE`.
+"""
+from __future__ import annotations
+
+import math
+
+from .quality_auto import Probe, QualityRule, target_of
+
+
+#: constants fitted on results/frontier/quick640 and quick160 (pixel
+#: centres) by ``python -m experiments.error_budget --fit-only``
+FITTED = {"k": -1.99, "k_range": (-4.0, -1.0)}
+#: steps of the marcher's probe
+MARCH_PROBE = (64, 128)
+
+
+def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
+    """Steps of the exact marcher: relMSE = C n^k through the probe's two
+    step counts (k clamped; the fitted k where the probe sees no error)."""
+    fit = fit or FITTED
+    e1, e2 = (probe.error(p, partial=True) for p in march_probe(probe.diagonal))
+    return {"visibility": "exact", "steps": march_steps(e1, e2, budget, fit)}
+
+
+def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:
+    """Steps n with C n^k = SAFETY·budget, C and k from the errors ``e1``,
+    ``e2`` at :data:`MARCH_PROBE` (module doc)."""
+    fit = fit or FITTED
+    n1, n2 = MARCH_PROBE
+    if not (e2 > 0 and math.isfinite(e2)):
+        return 16
+    k = fit["k"]
+    if e1 > 0 and math.isfinite(e1):
+        k = min(max(math.log(e2 / e1) / math.log(n2 / n1), fit["k_range"][0]), fit["k_range"][1])
+    n = n2 * (target_of(budget) / e2) ** (1.0 / k)
+    return int(min(max(math.ceil(n), 16), 16384))
+
+
+def march_probe(diagonal: float) -> list[dict]:
+    """The two settings the probe renders for an image of ``diagonal`` pixels."""
+    return [{"visibility": "exact", "steps": n} for n in MARCH_PROBE]
+
+
+#: the rule the plugin registers (:func:`~integrators.core.quality_auto.register_rule`)
+MARCH_RULE = QualityRule(knobs=("steps", "visibility"), probe=march_probe,
+                         choose=choose_raymarch, fit=FITTED)

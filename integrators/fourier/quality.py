@@ -1,0 +1,91 @@
+"""The ``quality="auto"`` rule of ``fourier_filter`` (Klehm 2014 §3 truncated
+Fourier series): relMSE = F + C·M^k in the coefficients M (F: what the
+series cannot fix, mostly the ``reference_ray`` weights' approximation); the
+probe renders M = 16 with the default weights, then -- unless that meets the
+target -- the M predicted as if its error were all series (F = 0), which is
+the answer when it meets the target and otherwise gives F and C. Where F
+alone misses the target the rule switches to ``weights="exact"`` (which
+removes most of F) and picks M from the series term C·M^k alone.
+
+The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
+the plugin registers :data:`FILTER_RULE`.
+"""
+from __future__ import annotations
+
+from ..core.quality_auto import Probe, QualityRule, target_of
+
+
+#: constants fitted on results/frontier/quick640 and quick160 (pixel
+#: centres) by ``python -m experiments.error_budget --fit-only``
+FITTED = {"k": -1.62}
+#: candidate coefficients of the filter, and its probe
+FILTER_COEFFICIENTS = (8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
+FILTER_PROBE = (16, 32)
+
+
+def filter_model(e1: float, e2: float, fit=None, m2: int | None = None) -> tuple[float, float]:
+    r"""(F, C) of relMSE = F + C M^k through the probe's errors ``e1`` at
+    M = :data:`FILTER_PROBE`\ [0] and ``e2`` at ``m2`` (default
+    :data:`FILTER_PROBE`\ [1]) (module doc)."""
+    fit = fit or FITTED
+    m1 = FILTER_PROBE[0]
+    m2 = m2 or FILTER_PROBE[1]
+    k = fit["k"]
+    C = max((e1 - e2) / (m1 ** k - m2 ** k), 0.0)
+    return max(e2 - C * m2 ** k, 0.0), C
+
+
+def filter_settings(e1: float, e2: float, budget: float, fit=None, m2: int | None = None) -> dict:
+    """Coefficients M (and weights) of the filter: the smallest candidate
+    with F + C M^k within the target; where the floor F alone misses it,
+    ``weights="exact"`` and the smallest M with C M^k within it (the most
+    coefficients when none is)."""
+    fit = fit or FITTED
+    k = fit["k"]
+    F, C = filter_model(e1, e2, fit, m2)
+    for M in FILTER_COEFFICIENTS:
+        if F + C * M ** k <= target_of(budget):
+            return {"coefficients": M}
+    for M in FILTER_COEFFICIENTS:
+        if C * M ** k <= target_of(budget):
+            return {"coefficients": M, "weights": "exact"}
+    return {"coefficients": FILTER_COEFFICIENTS[-1], "weights": "exact"}
+
+
+def predicted_coefficients(e1: float, budget: float, fit=None) -> int:
+    """The second probe's M: the smallest candidate above the first probe's
+    M whose series term C M^k meets the target if all of the first probe's
+    error ``e1`` is series (F = 0)."""
+    fit = fit or FITTED
+    m1 = FILTER_PROBE[0]
+    above = [M for M in FILTER_COEFFICIENTS if M > m1]
+    for M in above:
+        if e1 * (M / m1) ** fit["k"] <= target_of(budget):
+            return M
+    return above[-1]
+
+
+def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
+    """Coefficients and weights of the filter (module doc): the first probe
+    setting if it meets the target; else the M predicted from its error
+    alone (:func:`predicted_coefficients`), rendered as the second probe
+    and returned if it meets the target; else the model through both."""
+    first = filter_probe(probe.diagonal)[0]
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first
+    m2 = predicted_coefficients(e1, budget, fit)
+    e2 = probe.error({"coefficients": m2})
+    if e2 <= target_of(budget):
+        return {"coefficients": m2}
+    return filter_settings(e1, e2, budget, fit, m2)
+
+
+def filter_probe(diagonal: float) -> list[dict]:
+    """The two settings the probe renders for an image of ``diagonal`` pixels."""
+    return [{"coefficients": m} for m in FILTER_PROBE]
+
+
+#: the rule the plugin registers (:func:`~integrators.core.quality_auto.register_rule`)
+FILTER_RULE = QualityRule(knobs=("coefficients", "weights"), probe=filter_probe,
+                          choose=choose_filter, fit=FITTED)

@@ -1,0 +1,54 @@
+"""The ``quality="auto"`` rule of ``minmax_epipolar`` (Yusov 2013 §3 initial
+integration samples): relMSE = C·s^k in the initial step s (samples between
+integration samples); the probe renders s = 16 and 4, which give the scene's
+C and k (k clamped to ``FITTED["k_range"]``, set a priori:
+the suite's frontier runs have no minmax sweep to fit it on); the largest
+candidate step predicted to meet the target.
+
+The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
+the plugin registers :data:`MINMAX_RULE`.
+"""
+from __future__ import annotations
+
+import math
+
+from ..core.quality_auto import Probe, QualityRule, probe_errors, target_of
+
+
+#: constants fitted on results/frontier/quick640 and quick160 (pixel
+#: centres) by ``python -m experiments.error_budget --fit-only``
+FITTED = {"k": 1.0, "k_range": (0.5, 3.0)}
+#: candidate initial steps of minmax_epipolar, and its probe
+MINMAX_STEPS = (1, 2, 4, 8, 16, 32)
+MINMAX_PROBE = (16, 4)
+
+
+def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
+    """Initial step s with C s^k within the target, C and k through the
+    errors ``e1``, ``e2`` at :data:`MINMAX_PROBE` (k clamped; the largest
+    candidate predicted to meet it, else 1)."""
+    fit = fit or FITTED
+    s1, s2 = MINMAX_PROBE
+    if not (e2 > 0 and math.isfinite(e2)):
+        return s2 if e2 == 0 else 1
+    k = fit["k"]
+    if e1 > 0 and math.isfinite(e1):
+        k = min(max(math.log(e1 / e2) / math.log(s1 / s2), fit["k_range"][0]), fit["k_range"][1])
+    ok = [s for s in MINMAX_STEPS if e2 * (s / s2) ** k <= target_of(budget)]
+    return max(ok) if ok else MINMAX_STEPS[0]
+
+
+def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
+    """Initial step of the min/max method (module doc)."""
+    first, e1, e2 = probe_errors(probe, minmax_probe, budget)
+    return first if e2 is None else {"initial_step": minmax_step(e1, e2, budget, fit)}
+
+
+def minmax_probe(diagonal: float) -> list[dict]:
+    """The two settings the probe renders for an image of ``diagonal`` pixels."""
+    return [{"initial_step": s} for s in MINMAX_PROBE]
+
+
+#: the rule the plugin registers (:func:`~integrators.core.quality_auto.register_rule`)
+MINMAX_RULE = QualityRule(knobs=("initial_step",), probe=minmax_probe,
+                          choose=choose_minmax, fit=FITTED)

@@ -1,0 +1,112 @@
+"""The ``quality="auto"`` rule of ``epipolar_tree`` (Baran 2010 §8 slices, §7
+light rays): relMSE = A·(s/s₀)^a + B·(ρ/ρ₀)^-b in the slice spacing s [px]
+and the light-ray density ρ (light rays per slice over the image diagonal in
+pixels; the light-ray term is the tree's error floor at fixed light rays);
+the probe renders (s₀, ρ₀), then -- unless that meets the target -- the
+setting the model predicts from that error alone (A = B = its error, a
+conservative split), which is the answer when it meets the target and
+otherwise separates A and B; time ~ α + β/s + γ·ρ/s (fitted).
+
+The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
+the plugin registers :data:`TREE_RULE`.
+"""
+from __future__ import annotations
+
+from ..core.quality_auto import Probe, QualityRule, target_of
+
+
+#: constants fitted on results/frontier/quick640 and quick160 (pixel
+#: centres) by ``python -m experiments.error_budget --fit-only``
+FITTED = {"a": 1.9, "b": 1.1, "time": (0.543, 0.354, 0.102)}
+#: candidate slice spacings [px] and light-ray densities of the tree
+TREE_SPACINGS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
+TREE_DENSITIES = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0)
+#: the tree's probe: slice spacing s0 and densities rho0, 4 rho0
+TREE_PROBE = (2.0, 0.5, 2.0)
+
+
+def tree_model(e1: float, e2: float, fit=None, second=None):
+    """(A, B) of relMSE = A (s/s0)^a + B (rho/rho0)^-b from the probe's
+    errors ``e1`` at (s0, rho0) and ``e2`` at ``second`` = (s, rho)
+    (default (s0, 4 rho0), :data:`TREE_PROBE`).  A and B are clamped to
+    >= 0; where the two settings cannot separate them (both terms scale
+    alike), each is given the whole error the probe saw."""
+    fit = fit or FITTED
+    s0, r0, r1 = TREE_PROBE
+    s2, r2 = second if second is not None else (s0, r1)
+    u = (s2 / s0) ** fit["a"]
+    v = (r2 / r0) ** -fit["b"]
+    if abs(v - u) <= 1e-9 * max(u, v):
+        share = max(e1, e2 / u)
+        return share, share
+    B = (e2 - u * e1) / (v - u)
+    if B < 0:
+        return max(e1, e2 / u), 0.0
+    A = e1 - B
+    if A < 0:
+        return 0.0, max(e1, e2 / v)
+    return A, B
+
+
+def tree_choice(e1: float, e2: float, budget: float, fit=None, second=None):
+    """(slice_spacing, density) of least modelled time meeting the target
+    (the most accurate candidate if none does), the model through the
+    probe's errors (:func:`tree_model`)."""
+    return tree_choice_of(*tree_model(e1, e2, fit, second), budget, fit)
+
+
+def tree_choice_of(A: float, B: float, budget: float, fit=None):
+    """:func:`tree_choice` for the model's terms ``A`` and ``B``."""
+    fit = fit or FITTED
+    s0, r0, _ = TREE_PROBE
+    al, be, ga = fit["time"]
+    best, most = None, None
+    for s in TREE_SPACINGS:
+        for r in TREE_DENSITIES:
+            err = A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
+            t = al + be / s + ga * r / s
+            if err <= target_of(budget) and (best is None or t < best[0]):
+                best = (t, s, r)
+            if most is None or (err, t) < most[0]:
+                most = ((err, t), s, r)
+    return (best[1], best[2]) if best else (most[1], most[2])
+
+
+def light_rays_of(density: float, diagonal: float) -> int:
+    return int(min(max(round(density * diagonal), 32), 32767))
+
+
+def tree_settings(s: float, r: float, diagonal: float) -> dict:
+    return {"slice_spacing": s, "light_rays": light_rays_of(r, diagonal)}
+
+
+def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
+    """Slice spacing and light rays of the tree (module doc): the first probe
+    setting if it meets the target; else the setting predicted from its
+    error alone (both terms of the model given all of it), rendered as the
+    second probe and returned if it meets the target; else the choice of
+    the model through both."""
+    first = tree_probe(probe.diagonal)[0]
+    e1 = probe.error(first)
+    if e1 <= target_of(budget):
+        return first
+    s2, r2 = tree_choice_of(e1, e1, budget, fit)
+    second = tree_settings(s2, r2, probe.diagonal)
+    if second == first:                  # no prediction beyond it: the fixed second probe
+        second = tree_probe(probe.diagonal)[1]
+        s2, r2 = TREE_PROBE[0], TREE_PROBE[2]
+    e2 = probe.error(second)
+    if e2 <= target_of(budget):
+        return second
+    return tree_settings(*tree_choice(e1, e2, budget, fit, (s2, r2)), probe.diagonal)
+
+
+def tree_probe(diagonal: float) -> list[dict]:
+    """The two settings the probe renders for an image of ``diagonal`` pixels."""
+    s0, r0, r1 = TREE_PROBE
+    return [{"slice_spacing": s0, "light_rays": light_rays_of(r, diagonal)} for r in (r0, r1)]
+
+
+#: the rule the plugin registers (:func:`~integrators.core.quality_auto.register_rule`)
+TREE_RULE = QualityRule(knobs=("slice_spacing", "light_rays", "slices"), probe=tree_probe,
+                        choose=choose_tree, fit=FITTED)
