@@ -9,9 +9,6 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, auto_splits, frustum_axis_angle,
-                                projective_columns, projective_rectification, projective_rows)
-
 from .core.capture import capture_shadow_map
 from .core.opaque import two_or_more
 from .core.properties import read_bool, read_choice, read_number
@@ -22,16 +19,16 @@ from .epipolar.query_terms import assemble_queries
 from .fourier.basis import check_M
 from .fourier.exact import exact_sums
 from .fourier.prefilter import region_length
-from .fourier.projective_rays import (ProjectiveLightRays, projective_light_rays,
-                                      projective_query_terms, projective_x_range,
-                                      texel_separated_kernel)
+from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
+                                      projective_query_terms, texel_separated_kernel)
 from .fourier.quality import FILTER_RULE
 from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings, class_sums,
                                     near_band, near_step_weight, prefilter_rows,
                                     rectified_shadow_map, series_sum, series_unreliable,
                                     series_visibility)
 from .fourier.references import interpolated_sum, reference_rays, restrict_rows, row_kernel
-from .fourier.rows import ProjectivePlan, auto_texels, far_depth, row_spacing, texel_size
+from .fourier.rows import (ProjectivePlan, auto_texels, projective_plan, row_spacing,
+                           texel_size)
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
                            row_shift, unshadowed_band)
 from .fourier.tail import tail_visibility
@@ -53,12 +50,9 @@ BLOCKERS = ("traced", "resampled")
 #: when every view ray of the image is at least this far from the light
 #: direction (Klehm §4.2: "distance of the epipole to screen border").
 #: 90°: at most one view direction qualifies, so ``auto`` keeps the epipolar
-#: slices unless the threshold is lowered; the README ("projective against
-#: epipolar rectification") has the measurements behind this default.
+#: slices unless the threshold is lowered; results/projective_angles has
+#: the measurements behind this default.
 PROJECTIVE_MIN_ANGLE = 90.0
-#: ``rectification="projective"`` is refused closer than this [deg]
-#: (rectify.projective's default: the map degenerates, Klehm's fallback)
-PROJECTIVE_FLOOR = DEFAULT_MIN_ANGLE_DEG
 
 
 class FourierFilterIntegrator(EpipolarIntegrator):
@@ -142,7 +136,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                within 5° of the light direction)
     ``projective_min_angle``   ``auto``'s threshold in degrees (default
                                90: never, ``PROJECTIVE_MIN_ANGLE``; the
-                               README says why and where a lower one pays)
+                               measurements, results/projective_angles)
     ``projective_splits``      Klehm's splits of the projective columns;
                                0 (default): automatic, each spans ≤ 2× in x
                                (:func:`~rectify.projective.auto_splits`)
@@ -264,46 +258,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return plan.frame, plan.rows.slices, plan
 
     def projective_plan(self, params, cap) -> "ProjectivePlan | None":
-        """The projective map's frame, matrix and rows, or None for the
-        epipolar rectification: ``epipolar``; ``auto`` with a point/spot
-        light or a view ray closer than ``projective_min_angle`` to the light
-        direction (:func:`~rectify.projective.frustum_axis_angle`).
-        ``projective`` refuses (ValueError naming the problem and the fix)
-        a point/spot light, an on-screen (anti-)epipole and view rays closer
-        than ``PROJECTIVE_FLOOR`` to the light direction."""
-        if self.rectification == "epipolar":
-            return None
-        explicit = self.rectification == "projective"
-        if not light_model(params).projective:
-            if explicit:
-                raise ValueError(
-                    f"fourier_filter: rectification='projective' supports directional "
-                    f"lights only, the scene's light is a {params.light.kind} light; use "
-                    "rectification='epipolar' or 'auto' (which takes the epipolar "
-                    "rectification for point and spot lights).")
-            return None
-        frame = epipolar_frame_of(params)
-        if not explicit and frustum_axis_angle(frame) < self.projective_min_angle:
-            return None
-        rect, reason = projective_rectification(frame, far_depth(params, cap),
-                                                min_angle_deg=PROJECTIVE_FLOOR)
-        if rect is None:
-            if explicit:
-                raise ValueError(
-                    f"fourier_filter: rectification='projective' is impossible here: "
-                    f"{reason}; use rectification='epipolar' or 'auto' (which takes the "
-                    "epipolar slices in this view).")
-            return None
-        return ProjectivePlan(frame, rect, projective_rows(frame, rect, self.slices))
+        """:func:`~integrators.fourier.rows.projective_plan` of this render."""
+        return projective_plan(params, cap, self.rectification, self.projective_min_angle,
+                               self.slices)
 
     def projective_rays(self, params, queries, plan: "ProjectivePlan",
                         d: int) -> ProjectiveLightRays:
         """``d`` texels per row over the x range of the queries, in
         ``projective_splits`` splits (0: :func:`~rectify.projective.auto_splits`)."""
-        x_lo, x_hi = projective_x_range(queries, plan.rows)
-        splits = self.projective_splits or auto_splits(x_lo, x_hi)
-        columns = projective_columns(x_lo, x_hi, d, splits)
-        return projective_light_rays(params, queries, plan.rows, columns)
+        return projective_map_rays(params, queries, plan.rows, d, self.projective_splits)
 
     # -- the method ---------------------------------------------------------------
     def integrate_queries(self, params, cap, queries, plan=None):

@@ -129,8 +129,8 @@ kernel), and the segment between the map's first edge and the camera
 ray's origin is taken in closed form with the first texel's
 visibility.  It needs more rows as the epipole nears the screen and
 has no rasterisation to gain in a ray tracer, hence ``auto`` (below;
-its accuracy and time against the epipolar slices: README, "projective
-against epipolar rectification").  Blockers are traced (or read
+its accuracy and time against the epipolar slices:
+``results/projective_angles``).  Blockers are traced (or read
 from the shadow map) along the light ray through each texel centre.
 
 ``visibility`` chooses how the weighted visibility V̄ is obtained:

@@ -11,7 +11,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify.projective import ProjectiveColumns, ProjectiveRows
+from rectify.projective import (ProjectiveColumns, ProjectiveRows, auto_splits,
+                                projective_columns)
 
 from ..core.light_transport import color, segment_weight
 from ..core.opaque import Divisor, floats, scalar, scalar_u32
@@ -243,3 +244,12 @@ def projective_query_terms(params, cap, queries, rays: ProjectiveLightRays, V_ne
     near = dr.select(dr.isfinite(dh), near, 0.0)
     view = dr.rcp(sin_b)
     return replace(terms, view=mi.Color3f(view, view, view), near=near)
+
+
+def projective_map_rays(params, queries, rows: ProjectiveRows, d: int,
+                        splits: int = 0) -> ProjectiveLightRays:
+    """``d`` texels per row over the x range of the queries, in ``splits``
+    splits (0: :func:`~rectify.projective.auto_splits`)."""
+    x_lo, x_hi = projective_x_range(queries, rows)
+    columns = projective_columns(x_lo, x_hi, d, splits or auto_splits(x_lo, x_hi))
+    return projective_light_rays(params, queries, rows, columns)

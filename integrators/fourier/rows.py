@@ -21,9 +21,11 @@ import mitsuba as mi
 import numpy as np
 
 from rectify.epipole import EpipolarFrame
-from rectify.projective import ProjectiveRectification, ProjectiveRows
+from rectify.projective import (DEFAULT_MIN_ANGLE_DEG, ProjectiveRectification, ProjectiveRows,
+                                frustum_axis_angle, projective_rectification, projective_rows)
 
 from ..core.opaque import vector
+from ..epipolar.frame import epipolar_frame_of
 from ..epipolar.light_models import light_model
 from ..epipolar.light_rays.directional import auto_light_rays
 
@@ -100,3 +102,43 @@ def auto_texels(params, queries, cap) -> int:
     width, height = rectified_size(cam.width, cam.height)
     d = auto_light_rays(width, height, float(np.max(params.medium.sigma_t)), length)
     return max(d, min(TEXEL_FACTOR * d, MAX_AUTO_TEXELS))
+
+
+#: ``rectification="projective"`` is refused closer than this [deg]
+#: (rectify.projective's default: the map degenerates, Klehm's fallback)
+PROJECTIVE_FLOOR = DEFAULT_MIN_ANGLE_DEG
+
+
+def projective_plan(params, cap, rectification: str, min_angle: float,
+                    slices: int) -> ProjectivePlan | None:
+    """The projective map's frame, matrix and rows, or None for the
+    epipolar rectification: ``epipolar``; ``auto`` with a point/spot
+    light or a view ray closer than ``min_angle`` [deg] to the light
+    direction (:func:`~rectify.projective.frustum_axis_angle`).
+    ``projective`` refuses (ValueError naming the problem and the fix)
+    a point/spot light, an on-screen (anti-)epipole and view rays closer
+    than :data:`PROJECTIVE_FLOOR` to the light direction."""
+    if rectification == "epipolar":
+        return None
+    explicit = rectification == "projective"
+    if not light_model(params).projective:
+        if explicit:
+            raise ValueError(
+                f"fourier_filter: rectification='projective' supports directional "
+                f"lights only, the scene's light is a {params.light.kind} light; use "
+                "rectification='epipolar' or 'auto' (which takes the epipolar "
+                "rectification for point and spot lights).")
+        return None
+    frame = epipolar_frame_of(params)
+    if not explicit and frustum_axis_angle(frame) < min_angle:
+        return None
+    rect, reason = projective_rectification(frame, far_depth(params, cap),
+                                            min_angle_deg=PROJECTIVE_FLOOR)
+    if rect is None:
+        if explicit:
+            raise ValueError(
+                f"fourier_filter: rectification='projective' is impossible here: "
+                f"{reason}; use rectification='epipolar' or 'auto' (which takes the "
+                "epipolar slices in this view).")
+        return None
+    return ProjectivePlan(frame, rect, projective_rows(frame, rect, slices))
