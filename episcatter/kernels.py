@@ -125,3 +125,61 @@ def literal_changes(before: KernelLog, after: KernelLog) -> list:
                 best = diff
         out.append((i, best))
     return out
+
+
+@contextmanager
+def launch_sites(roots=("integrators", "rectify")):
+    """Count the JIT kernels launched inside the block by the source line
+    that launched them: a ``Counter`` of ``"path:line function"`` (paths
+    under one of ``roots``, relative to the repository).
+
+    A kernel runs when a line needs an array's values (a read-back, a
+    gather or scatter from an unevaluated array, ``dr.eval``); this traces
+    every line of the ``roots`` packages (``sys.settrace``: slow, for
+    diagnosis) and charges the kernels launched since the last line event
+    to the line of ours that was running -- after a call into one of our
+    functions returns, to the caller's line.  Owns the kernel history
+    while it runs."""
+    import collections
+    import os
+    import sys
+
+    top = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+    prefixes = tuple(top + r + os.sep for r in roots)
+    sites = collections.Counter()
+    last = ["<before the first traced line>"]
+
+    def charge():
+        n = sum(1 for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT)
+        if n:
+            sites[last[0]] += n
+
+    def where(frame) -> str:
+        return f"{frame.f_code.co_filename[len(top):]}:{frame.f_lineno} {frame.f_code.co_name}"
+
+    def local(frame, event, arg):
+        if event == "line":
+            charge()
+            last[0] = where(frame)
+        elif event == "return":
+            charge()
+            caller = frame.f_back
+            if caller is not None and caller.f_code.co_filename.startswith(prefixes):
+                last[0] = where(caller)
+        return local
+
+    def tracer(frame, event, arg):
+        return local if frame.f_code.co_filename.startswith(prefixes) else None
+
+    was = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    previous = sys.gettrace()
+    sys.settrace(tracer)
+    try:
+        yield sites
+    finally:
+        sys.settrace(previous)
+        dr.sync_thread()
+        charge()
+        dr.set_flag(dr.JitFlag.KernelHistory, was)

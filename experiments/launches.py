@@ -8,7 +8,12 @@ one more render inside :func:`episcatter.kernels.kernel_log`: JIT kernels
 launched, and of them distinct (by source hash: the kernels an empty cache
 would compile).
 
-Writes ``results/launches/``: ``runs.csv``, ``runs.json``, ``table.md``.
+Per method, also the source lines that launched the most kernels over
+the scenes measured (:func:`episcatter.kernels.launch_sites`, a second
+warm render under a line tracer): where the next launch to remove is.
+
+Writes ``results/launches/``: ``runs.csv``, ``runs.json``, ``table.md``
+(with the launch sites).
 ``python -m experiments.launches [--size 640x480] [--scenes ...] [--quick]``.
 """
 from __future__ import annotations
@@ -22,6 +27,8 @@ SCENES = ["beam", "grove", "hall", "nave_offscreen", "nave_onscreen", "point_fog
           "sun_ahead", "sun_behind", "sun_room", "terrain"]
 QUICK_SCENES = ["point_fog"]
 METHODS = ["raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar"]
+#: launch sites listed per method
+SITES = 15
 
 
 def settings_for(quick: bool) -> dict:
@@ -32,7 +39,7 @@ def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict
     import drjit as dr
     import mitsuba as mi
 
-    from episcatter.kernels import kernel_log
+    from episcatter.kernels import kernel_log, launch_sites
 
     scene = c.load(c.scene_file(name), c.resolution(s["width"], s["height"]))
     rows = []
@@ -41,9 +48,12 @@ def measure_scene(name: str, s: dict, repeats: int, progress: bool) -> list[dict
         dr.eval(mi.render(scene, integrator=integ, spp=1))
         with kernel_log() as log:
             dr.eval(mi.render(scene, integrator=integ, spp=1))
+        with launch_sites() as sites:
+            dr.eval(mi.render(scene, integrator=integ, spp=1))
         rows.append({"scene": name, "method": kind, "width": s["width"], "height": s["height"],
                      "launched": log.launched, "compiled": log.compiled,
-                     "distinct": len({k.get("hash") for k in log.entries})})
+                     "distinct": len({k.get("hash") for k in log.entries}),
+                     "sites": dict(sites)})
     return rows
 
 
@@ -55,7 +65,18 @@ def report(rows: list[dict], s: dict, repeats: int) -> str:
     head = (f"# JIT kernels launched per warm frame, {s['width']}x{s['height']}\n\n"
             "Each cell: launched (distinct sources).  One render after a first one, at the "
             "integrator's defaults, 1 sample per pixel.\n\n")
-    return head + c.markdown_table(["scene"] + METHODS, table)
+    out = head + c.markdown_table(["scene"] + METHODS, table)
+    for m in METHODS:
+        total = {}
+        for r in rows:
+            if r["method"] == m:
+                for site, n in r.get("sites", {}).items():
+                    total[site] = total.get(site, 0) + n
+        top = sorted(total.items(), key=lambda kv: -kv[1])[:SITES]
+        out += (f"\n\n## `{m}`: the {len(top)} source lines launching the most kernels "
+                f"(summed over the {len(scenes)} scenes)\n\n"
+                + c.markdown_table(["launches", "line"], [[n, f"`{site}`"] for site, n in top]))
+    return out
 
 
 def main(argv=None) -> list[dict]:

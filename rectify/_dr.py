@@ -34,16 +34,32 @@ def shared_scalars():
         _SHARED.reset(token)
 
 
+#: NumPy dtype of each Dr.Jit scalar type an opaque scalar may have
+_DTYPES = {dr.VarType.Float32: np.float32, dr.VarType.Float64: np.float64,
+           dr.VarType.UInt32: np.uint32, dr.VarType.Int32: np.int32,
+           dr.VarType.UInt64: np.uint64, dr.VarType.Int64: np.int64, dr.VarType.Bool: np.bool_}
+
+
+def _opaque(tp, value):
+    """One evaluated entry of type ``tp`` holding ``value``, made from host
+    memory: what ``dr.opaque`` makes, without the kernel that writes it
+    (a copy from a NumPy buffer, on the CPU none at all)."""
+    with np.errstate(over="ignore"):
+        host = np.asarray([value], dtype=_DTYPES[dr.type_v(tp)])
+    return tp(aligned(host, host.dtype))
+
+
 def opaque_scalar(tp, value):
-    """``dr.opaque(tp, value)``, or within :func:`shared_scalars` the one
-    variable of that type and value (as a new handle)."""
+    """An opaque ``tp`` scalar holding ``value`` (a kernel parameter, not a
+    literal), or within :func:`shared_scalars` the one variable of that
+    type and value (as a new handle)."""
     cache = _SHARED.get()
     if cache is None:
-        return dr.opaque(tp, value)
+        return _opaque(tp, value)
     key = (tp, value)
     var = cache.get(key)
     if var is None:
-        var = cache[key] = dr.opaque(tp, value)
+        var = cache[key] = _opaque(tp, value)
     return tp(var)          # a new handle: an in-place update cannot reach the cache
 
 
@@ -105,3 +121,15 @@ def to_numpy(a) -> np.ndarray:
 def to_image(a, width: int, height: int) -> np.ndarray:
     """A flat per-pixel Dr.Jit array as a NumPy (height, width) image."""
     return np.asarray(a).reshape(int(height), int(width))
+
+
+def host_array(value) -> np.ndarray:
+    """A Dr.Jit value (scalar, array, vector, colour, matrix) as a float64
+    NumPy array, read component by component: ``np.array`` of a nested
+    array (an ``Array3f``, a ``Matrix4f``) packs it in a kernel of its own,
+    while an evaluated component is a plain copy.  Flat order: component
+    by component (``[x..., y..., z...]``; a matrix row by row), as
+    ``np.array(value).reshape(-1)`` of a width-1 value."""
+    if dr.is_array_v(value) and dr.depth_v(value) > 1:
+        return np.concatenate([host_array(value[i]) for i in range(len(value))])
+    return np.asarray(value, dtype=np.float64).reshape(-1)

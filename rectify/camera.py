@@ -75,9 +75,11 @@ class CameraParams:
         r, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f([0.5, 1.0, 0.5], [0.5, 0.5, 1.0]),
                                  mi.Point2f(0.5, 0.5))
         import drjit as dr
+
+        from ._dr import host_array
         dr.eval(r.o, r.d)
-        o3 = np.array(r.o, dtype=np.float64).reshape(3, 3).T      # (ray, xyz)
-        d3 = np.array(r.d, dtype=np.float64).reshape(3, 3).T
+        o3 = host_array(r.o).reshape(3, 3).T      # (ray, xyz), no packing kernel
+        d3 = host_array(r.d).reshape(3, 3).T
         d3 = d3 / np.linalg.norm(d3, axis=1, keepdims=True)
         o, f, d1, d2 = o3[0], d3[0], d3[1], d3[2]
         x_axis = d1 / (d1 @ f) - f

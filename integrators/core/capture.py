@@ -33,24 +33,27 @@ MAX_NULL_CROSSINGS = 4
 
 def first_surface(scene, ray, active=True):
     """First intersection with a non-null surface along ``ray`` (null-BSDF
-    surfaces such as the medium box are passed).  Returns (si, t) with ``t``
-    measured from the original ray origin; ``si.is_valid()`` is False if the
-    ray escapes."""
+    surfaces such as the medium box are passed, at most
+    :data:`MAX_NULL_CROSSINGS` of them, in a symbolic loop: no kernel and no
+    host read of its own).  Returns (si, t) with ``t`` measured from the
+    original ray origin; ``si.is_valid()`` is False if the ray escapes."""
     active = mi.Bool(active)
     origin, direction = mi.Point3f(ray.o), mi.Vector3f(ray.d)
     si = scene.ray_intersect(ray, active)
-    for _ in range(MAX_NULL_CROSSINGS):
-        bsdf = si.bsdf(ray)
-        passing = active & si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
-        if not dr.any(passing):
-            break
+
+    def passing(i, si, ray):
+        return ((i < MAX_NULL_CROSSINGS) & active & si.is_valid()
+                & mi.has_flag(si.bsdf(ray).flags(), mi.BSDFFlags.Null))
+
+    def cross(i, si, ray):
         # continue along the ray itself (spawn_ray would offset the origin
         # along the surface normal, shifting the ray sideways by ~mm)
         off = 16 * mi.math.RayEpsilon * (1 + dr.max(dr.abs(si.p)))
         nxt = mi.Ray3f(si.p + ray.d * off, ray.d)
-        si2 = scene.ray_intersect(nxt, passing)
-        si = dr.select(passing, si2, si)
-        ray = dr.select(passing, nxt, ray)
+        return i + 1, scene.ray_intersect(nxt), nxt
+
+    _, si, _ = dr.while_loop((mi.UInt32(0), si, mi.Ray3f(ray)), passing, cross,
+                             label="first_surface")
     # distance from the original origin (spawned rays start slightly offset)
     t = dr.dot(mi.Vector3f(si.p - origin), direction) * dr.rcp(dr.squared_norm(direction))
     return si, dr.select(si.is_valid(), t, dr.inf)
@@ -355,6 +358,7 @@ def capture_shadow_map(params, camera_capture: CameraCapture, res: int) -> Shado
         u = dr.dot(mi.Vector3f(pts), vector(e1))
         v = dr.dot(mi.Vector3f(pts), vector(e2))
         o = params.camera.origin
+        dr.eval(u, v)                   # one kernel; the four reductions read it
         u_lo = min(float(dr.min(u)[0]), float(o @ e1))
         u_hi = max(float(dr.max(u)[0]), float(o @ e1))
         v_lo = min(float(dr.min(v)[0]), float(o @ e2))

@@ -77,4 +77,5 @@ def check_unknown_properties(props, plugin: str, names=(), renamed=None) -> None
 
 
 #: properties every integrator reads (the template's)
-COMMON_PROPERTIES = ("output", "samples_per_pixel", "jitter_pixels", "quality", "error_budget")
+COMMON_PROPERTIES = ("output", "samples_per_pixel", "jitter_pixels", "quality", "error_budget",
+                     "report_launches")

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
+from rectify._dr import host_array
 from rectify.camera import CameraParams
 
 
@@ -39,8 +40,9 @@ def _name(obj) -> str:
 
 
 def _vec(value, n=3) -> np.ndarray:
-    """Mitsuba scalar/colour/point parameter -> float64 numpy array of length n."""
-    arr = np.array(value, dtype=np.float64).reshape(-1)
+    """Mitsuba scalar/colour/point parameter -> float64 numpy array of length
+    n (read component by component: no kernel, :func:`~rectify._dr.host_array`)."""
+    arr = host_array(value)
     if arr.size == 1:
         arr = np.repeat(arr, n)
     return arr[:n]
@@ -225,7 +227,7 @@ def _check_phase(phase, med) -> str:
             f"supported: use one of {sorted(SUPPORTED_PHASES.values())}.")
     params = mi.traverse(phase)
     for key in params.keys():
-        val = np.array(params[key], dtype=np.float64).reshape(-1)
+        val = host_array(params[key])
         if key.endswith(".g") or key == "g":
             if not np.all(np.isfinite(val)) or np.any(np.abs(val) >= 1):
                 raise ValueError(f"Medium {_name(med)}: HG asymmetry g = {val.tolist()} "
@@ -289,7 +291,7 @@ def read_light(scene) -> LightParams:
     params = mi.traverse(em)
     if kind == "directional":
         radiance = _vec(params["irradiance.value"])
-        to_world = np.array(params["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        to_world = host_array(params["to_world"].matrix).reshape(4, 4)
         d = to_world[:3, :3] @ np.array([0.0, 0.0, 1.0])   # propagation direction
         n = np.linalg.norm(d)
         if not np.isfinite(n) or n == 0:
@@ -301,10 +303,10 @@ def read_light(scene) -> LightParams:
                             position=_vec(params["position"]), emitter=em)
     else:
         radiance = _vec(params["intensity.value"])
-        to_world = np.array(params["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        to_world = host_array(params["to_world"].matrix).reshape(4, 4)
         axis = to_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        cutoff = float(np.array(params["cutoff_angle"]).reshape(-1)[0])
-        beam = float(np.array(params["beam_width"]).reshape(-1)[0])
+        cutoff = float(host_array(params["cutoff_angle"])[0])
+        beam = float(host_array(params["beam_width"])[0])
         if not (np.isfinite(cutoff) and 0 < cutoff <= 90):
             raise ValueError(f"Emitter {_name(em)}: cutoff_angle {cutoff} must be in (0, 90] degrees.")
         # Mitsuba lists a uniform ``texture.value`` for a spot light without

@@ -112,6 +112,17 @@ class RenderRecord:
     #: not resolve and asks the epipolar template to ray-march with the
     #: samples it marches anyway (one march: ``remarch_disagreeing``)
     march: list = field(default_factory=list)
+    #: with ``report_launches``: JIT kernels launched per stage (else None)
+    launches: dict | None = None
+    #: the stage running (what launches outside every stage count under)
+    stage: str = "other"
+
+
+def count_launches(record: RenderRecord, stage: str) -> None:
+    """Charge the JIT kernels launched since the last count to ``stage``."""
+    n = sum(1 for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT)
+    if n:
+        record.launches[stage] = record.launches.get(stage, 0) + n
 
 
 #: Dr.Jit's expand threshold during a render: 0, reductions with local
@@ -188,6 +199,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                                   if "samples_per_pixel" in props else None)
         self.jitter_pixels = (read_bool(props, "jitter_pixels", False)
                               if "jitter_pixels" in props else None)
+        #: count the JIT kernels of each stage into ``stats["launches"]``
+        #: (owns Dr.Jit's kernel history during the render)
+        self.report_launches = read_bool(props, "report_launches", False)
         self.quality, self.error_budget = quality_auto.read_quality(props)
         self.method_name = props.plugin_name()
         self.read_properties(props)
@@ -267,13 +281,25 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
     @contextmanager
     def stage(self, name):
         """Time a block; results appended to the yielded list are evaluated
-        (and waited for) before the clock stops."""
+        (and waited for) before the clock stops.  With ``report_launches``
+        the render's ``stats["launches"]`` counts the JIT kernels each stage
+        launched (a nested stage's own are its own)."""
+        record = self.render_record
+        counting = record.launches is not None
+        if counting:
+            count_launches(record, record.stage)
+        outer, record.stage = record.stage, name
         t0 = time.perf_counter()
         out = []
-        yield out
-        dr.eval(*out) if out else None
-        dr.sync_thread()
-        timings = self.render_record.timings
+        try:
+            yield out
+            dr.eval(*out) if out else None
+            dr.sync_thread()
+        finally:
+            if counting:
+                count_launches(record, name)
+            record.stage = outer
+        timings = record.timings
         timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
 
     # -- Mitsuba conventions ------------------------------------------------------
@@ -361,6 +387,11 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         themselves (a sequence's partial frames) open their own."""
         record = RenderRecord(seed=scalar_seed(seed))
         token = _RECORD.set(record)
+        history = dr.flag(dr.JitFlag.KernelHistory)
+        if self.report_launches:
+            record.launches = {}
+            dr.set_flag(dr.JitFlag.KernelHistory, True)
+            dr.kernel_history()                 # what came before is not this render's
         expand = dr.expand_threshold()
         # LLVM's expanded scatter-reductions write the target's size into
         # the kernel, so a new frame's row or light-ray count would be a new
@@ -371,6 +402,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                 yield record
         finally:
             dr.set_expand_threshold(expand)
+            dr.set_flag(dr.JitFlag.KernelHistory, history)
             _RECORD.reset(token)
 
     def _render_layers(self, scene, sensor, seed, spp, samples, moved, known, record, variant):
@@ -406,6 +438,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                                     None if alone else computed)
             keep.extend(layers.values())
         record.timings["total"] = time.perf_counter() - t_start
+        if record.launches is not None:
+            count_launches(record, "other")
+            record.stats["launches"] = dict(record.launches)
         return RenderResult(layers=layers, timings=dict(record.timings),
                             stats=dict(record.stats), samples=computed, capture=cap,
                             L_scat=L_scat, frame_state=record.frame_state)

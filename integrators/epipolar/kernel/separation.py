@@ -22,7 +22,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.opaque import Divisor, floats, scalar_u32
+from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains
 from .svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
@@ -86,7 +86,7 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
     # weights exceed it; their kernel factor e^{-σt x t} has underflowed to
     # 0 there, and an inf weight would turn 0 into NaN
     finite = np.clip(np.nan_to_num(weights, nan=0.0), -1e30, 1e30)
-    st = dr.opaque(mi.Float, float(sigma_t))
+    st = opaque_scalar(mi.Float, float(sigma_t))
     return nystrom_sums(dr.width(x), finite,
                         lambda k: dr.exp(-st * x * dr.gather(mi.Float, tab, k)))
 
@@ -97,7 +97,7 @@ def directional_ray_kernel(params, queries, rays, sigma_t: float):
     rays: φ of the interval's mean is common to a row and cancels in a
     weighted average); the directional light model's ``ray_kernel``."""
     _, gamma = rays.positions(0.0)
-    neg_st = dr.opaque(mi.Float, -float(sigma_t))
+    neg_st = opaque_scalar(mi.Float, -float(sigma_t))
     return lambda t, tan: dr.exp(neg_st * dr.gather(mi.Float, gamma, t) * tan)
 
 
@@ -113,7 +113,7 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     C = 1 for grey σt.  The automatic rank meets ``tol`` after the light
     side's largest amplification (:func:`~integrators.epipolar.light_factor.light_side_gains`
     of ``separation.light_side_path``), per channel, and -- for a
-    separation with ``sum_error`` (the directional light's) -- after the
+    separation with ``sum_errors`` (the directional light's) -- after the
     rows' actual sums are checked (:func:`checked_tolerances`).
     ``points``: (count, points) at which A is evaluated instead of the
     separation's own ``kernel_points`` (e.g. the Gauss nodes of a
@@ -133,7 +133,7 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     tols = [tol / gains[c] for c in channels]
     kernels = [separation.channel(params, whole, whole_rays, float(sigma_t[c]), rank, t)
                for c, t in zip(channels, tols)]
-    if not rank and hasattr(separation, "sum_error"):
+    if not rank and hasattr(separation, "sum_errors"):
         kernels = checked_tolerances(separation, params, whole, whole_rays, channels, kernels,
                                      tols)
     N = max(k.N for k in kernels)
@@ -147,10 +147,10 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     CN = scalar_u32(C * N)          # the rank is the frame's: not a literal
     lane_a = dr.arange(mi.UInt32, count) * CN
     lane_b = queries.slot * CN
-    for c, kern in enumerate(kernels):
-        a_terms = kern.a_terms(points, count, lanes=lanes_a)
-        b_terms = kern.b_terms(tan_half, lanes=whole.count)
-        dr.eval(a_terms)            # all N terms in one pass of the Nyström loop
+    terms = [(kern.a_terms(points, count, lanes=lanes_a),
+              kern.b_terms(tan_half, lanes=whole.count)) for kern in kernels]
+    dr.eval([a for a, _ in terms])  # every channel's N terms in one pass of the Nyström loop
+    for c, (kern, (a_terms, b_terms)) in enumerate(zip(kernels, terms)):
         for i in range(kern.N):
             term = scalar_u32(c * N + i)
             dr.scatter(A, a_terms[i], lane_a + term)
@@ -181,7 +181,7 @@ def checked_tolerances(separation, params, queries, rays, channels, kernels, tol
     fast as K decays (a view ray toward the light in a thick medium: the
     camera-side path grows as the light-side path shrinks) the sum is
     e^{-10…-20} of ∫K dγ and all error (random stress seeds 72, 86).  Here
-    ``separation.sum_error`` measures, for each row's first and last query
+    ``separation.sum_errors`` measures, for each row's first and last query
     and every light ray, Σ |K̃ − K|·L against the frame's largest
     unshadowed sum; a channel whose ratio exceeds its tolerance is
     separated again at tolerance / (ratio · CHECK_MARGIN), at most
@@ -192,10 +192,10 @@ def checked_tolerances(separation, params, queries, rays, channels, kernels, tol
     tols = list(tols)
     for _ in range(CHECK_ROUNDS):
         redo = False
-        for k, c in enumerate(channels):
-            if kernels[k].N >= MAX_RANK:
-                continue
-            err = separation.sum_error(params, queries, rays, kernels[k])
+        checked = [k for k in range(len(channels)) if kernels[k].N < MAX_RANK]
+        errors = separation.sum_errors(params, queries, rays, [kernels[k] for k in checked])
+        for k, err in zip(checked, errors):
+            c = channels[k]
             if err > tols[k]:
                 tols[k] = tols[k] * tols[k] / (err * CHECK_MARGIN)
                 kernels[k] = separation.channel(params, queries, rays,
@@ -272,17 +272,16 @@ class DirectionalSeparation:
         _, gamma = rays.positions(0.0)   # cell starts: φ in the query terms averages K
         return dr.width(gamma), gamma
 
-    def sum_error(self, params, queries, rays, kern: DirectionalChannel) -> float:
-        """max over rows of Σ_γ |K̃ − K|·L (K̃: ``kern``'s separated kernel;
-        every k-th light ray, at most SUM_CHECK_RAYS per row)
-        at the row's first and last query (smallest, largest β), over the
-        largest Σ_γ K·L of any of them; each weighted by its row's
-        e^{-σt h_ref} Δγ / sin β (:func:`checked_tolerances`)."""
+    def sum_errors(self, params, queries, rays, kernels: list) -> list[float]:
+        """For each channel's kernel: max over rows of Σ_γ |K̃ − K|·L (K̃:
+        the separated kernel; every k-th light ray, at most SUM_CHECK_RAYS
+        per row) at the row's first and last query (smallest, largest β),
+        over the largest Σ_γ K·L of any of them; each weighted by its row's
+        e^{-σt h_ref} Δγ / sin β (:func:`checked_tolerances`).  Every
+        channel's per-row sums are read back together, once."""
         n, r = queries.n, queries.r
-        if not n or getattr(rays, "h", None) is None:
-            return 0.0
-        st = kern.sigma_t
-        neg_st = dr.opaque(mi.Float, -float(st))
+        if not n or not kernels or getattr(rays, "h", None) is None:
+            return [0.0] * len(kernels)
         row = dr.arange(mi.UInt32, n)
         last = dr.maximum(mi.UInt32(queries.r_count), 1) - 1
         beta_q = queries.padded(queries.beta, 0.0)
@@ -293,35 +292,54 @@ class DirectionalSeparation:
         stride = max(1, -(-d // SUM_CHECK_RAYS))
         m = -(-d // stride)
         lane = dr.arange(mi.UInt32, n * m)
-        d_o, stride_o = (dr.opaque(mi.UInt32, v) for v in (d, stride))
+        d_o, stride_o = (opaque_scalar(mi.UInt32, v) for v in (d, stride))
         s, piece = Divisor(m).divmod(lane)
         ray = s * d_o + dr.minimum(piece * stride_o, d_o - 1)
         gamma = dr.gather(mi.Float, gamma_all, ray)
-        L = light_side_extinction(st, dr.gather(mi.Float, rays.h, ray),
-                                  dr.gather(mi.Float, rays.h_ref, s))
         h_ref = rays.h_ref
         h_lo = dr.min(h_ref)
-        a_terms = kern.a_terms(gamma, dr.width(gamma))
-        worst, scale = 0.0, 0.0
-        for col in (dr.zeros(mi.UInt32, n), last):
-            beta = dr.gather(mi.Float, beta_q, row * dr.opaque(mi.UInt32, r) + col)
-            tan_half = dr.tan(0.5 * beta)
-            b_terms = kern.b_terms(tan_half)
-            tan_s = dr.gather(mi.Float, tan_half, s)
-            approx = dr.zeros(mi.Float, dr.width(gamma))
-            for i in range(kern.N):
-                approx += a_terms[i] * dr.gather(mi.Float, b_terms[i], s)
-            exact = dr.exp(neg_st * gamma * tan_s)
-            err = dr.zeros(mi.Float, n)
-            tot = dr.zeros(mi.Float, n)
-            dr.scatter_reduce(dr.ReduceOp.Add, err, dr.abs(approx - exact) * L, s)
-            dr.scatter_reduce(dr.ReduceOp.Add, tot, exact * L, s)
-            w = (dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma * mi.Float(stride_o)
-                 / dr.maximum(dr.sin(beta), 1e-6))
-            used = mi.UInt32(queries.r_count) > 0
-            worst = max(worst, float(dr.max(dr.select(used, err * w, 0.0))[0]))
-            scale = max(scale, float(dr.max(dr.select(used, tot * w, 0.0))[0]))
-        return worst / scale if scale > 0.0 else 0.0
+        used = mi.UInt32(queries.r_count) > 0
+        betas = [dr.gather(mi.Float, beta_q, row * opaque_scalar(mi.UInt32, r) + col)
+                 for col in (dr.zeros(mi.UInt32, n), last)]
+        tans = [dr.tan(0.5 * beta) for beta in betas]
+        b_all = [[kern.b_terms(t) for t in tans] for kern in kernels]
+        Ls = [light_side_extinction(kern.sigma_t, dr.gather(mi.Float, rays.h, ray),
+                                    dr.gather(mi.Float, rays.h_ref, s)) for kern in kernels]
+        a_all = [kern.a_terms(gamma, dr.width(gamma)) for kern in kernels]
+        dr.eval(b_all, tans, a_all, Ls)     # one kernel per width: rows, checked light rays
+        # per channel and column: (Σ |K̃ − K| L, Σ K L) per row, in one buffer
+        sums = dr.zeros(mi.Float, 4 * n * len(kernels))
+        weights = []
+        for k, kern in enumerate(kernels):
+            st = kern.sigma_t
+            neg_st = opaque_scalar(mi.Float, -float(st))
+            L, a_terms = Ls[k], a_all[k]
+            for j, (beta, tan_half, b_terms) in enumerate(zip(betas, tans, b_all[k])):
+                tan_s = dr.gather(mi.Float, tan_half, s)
+                approx = dr.zeros(mi.Float, dr.width(gamma))
+                for i in range(kern.N):
+                    approx += a_terms[i] * dr.gather(mi.Float, b_terms[i], s)
+                exact = dr.exp(neg_st * gamma * tan_s)
+                base = opaque_scalar(mi.UInt32, (4 * k + 2 * j) * n)
+                dr.scatter_reduce(dr.ReduceOp.Add, sums, dr.abs(approx - exact) * L, base + s)
+                dr.scatter_reduce(dr.ReduceOp.Add, sums, exact * L,
+                                  base + opaque_scalar(mi.UInt32, n) + s)
+                weights.append(dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma
+                               * mi.Float(stride_o) / dr.maximum(dr.sin(beta), 1e-6))
+        dr.eval(sums, weights, used)
+        # host reads of evaluated arrays (copies, no kernels): the sums, weights
+        host = np.asarray(sums).reshape(len(kernels), 2, 2, n)
+        w_host = [np.asarray(w) for w in weights]
+        use = np.asarray(used)
+        out = []
+        for k in range(len(kernels)):
+            worst, scale = 0.0, 0.0
+            for j in range(2):
+                w = w_host[2 * k + j]
+                worst = max(worst, float(np.max(np.where(use, host[k, j, 0] * w, 0.0))))
+                scale = max(scale, float(np.max(np.where(use, host[k, j, 1] * w, 0.0))))
+            out.append(worst / scale if scale > 0.0 else 0.0)
+        return out
 
     def to_rows(self, A, queries, rays, CN: int):
         return A

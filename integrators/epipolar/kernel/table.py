@@ -23,7 +23,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.opaque import floats, scalar
+from ...core.opaque import floats, opaque_scalar, scalar
 
 
 def nystrom_sums(n_lanes: int, weights: np.ndarray, term) -> list:
@@ -33,7 +33,7 @@ def nystrom_sums(n_lanes: int, weights: np.ndarray, term) -> list:
     kinds); ``term(k)`` gives the lanes' kernel values at grid point k."""
     K, N = weights.shape
     W = [floats(weights[:, i]) for i in range(N)]
-    n_k = dr.opaque(mi.UInt32, K)
+    n_k = opaque_scalar(mi.UInt32, K)
 
     def body(k, acc):
         e = term(k)
@@ -67,6 +67,7 @@ def tabulated_terms(x: mi.Float, lo: float, hi: float, c: float,
         v_hi = 1e-6
     v_tab = np.linspace(0.0, v_hi, KERNEL_TABLE)
     values = terms_at(floats(lo + np.expm1(v_tab) / c))
+    dr.eval(*values)        # the whole table in one kernel (a gather would evaluate each term)
     u = (dr.log(1.0 + scalar(c) * dr.maximum(x - scalar(lo), 0.0))
          * scalar((KERNEL_TABLE - 1) / v_hi))
     i0 = mi.UInt32(dr.clip(dr.floor(u), 0, KERNEL_TABLE - 2))

@@ -1,0 +1,69 @@
+"""Kernels per frame: what a warm frame launches (counted, not timed)."""
+import drjit as dr
+import mitsuba as mi
+import pytest
+
+from episcatter.kernels import kernel_log, launch_sites
+from experiments import common as c
+
+#: the most JIT kernels a warm raymarch frame may launch at its defaults:
+#: the camera and scene parameters, the capture, the shadow map's bounds
+#: and its texels, the march, the film
+RAYMARCH_LAUNCHES = 8
+
+
+def _warm_log(scene, integ):
+    dr.eval(mi.render(scene, integrator=integ, spp=1))
+    with kernel_log() as log:
+        dr.eval(mi.render(scene, integrator=integ, spp=1))
+    return log
+
+
+@pytest.mark.parametrize("name", ["hall", "point_fog", "spot_room", "sun_behind"])
+def test_a_warm_raymarch_frame_launches_few_kernels(name):
+    scene = c.load(c.scene_file(name), c.resolution(64, 48))
+    log = _warm_log(scene, mi.load_dict({"type": "raymarch"}))
+    assert log.launched <= RAYMARCH_LAUNCHES, [k.get("size") for k in log.entries]
+
+
+@pytest.mark.parametrize("method", ["raymarch", "epipolar_tree", "minmax_epipolar"])
+def test_report_launches_counts_every_kernel_of_the_render(method):
+    """The per-stage counts add up to what a kernel log around the same
+    render without the report counts; the render owns the history while it
+    runs and hands the flag back."""
+    scene = c.load(c.scene_file("point_fog"), c.resolution(48, 36))
+    plain = mi.load_dict({"type": method})
+    dr.eval(plain.render_layers(scene, spp=1)["full"])
+    with kernel_log() as log:
+        dr.eval(plain.render_layers(scene, spp=1)["full"])
+    integ = mi.load_dict({"type": method, "report_launches": True})
+    dr.eval(integ.render_layers(scene, spp=1)["full"])
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    result = integ.render_layers(scene, spp=1)
+    dr.eval(result["full"])
+    per_stage = result.stats["launches"]
+    assert {"validate", "capture", "compose"} <= set(per_stage)
+    assert sum(per_stage.values()) == log.launched, per_stage
+    assert not dr.flag(dr.JitFlag.KernelHistory)
+
+
+def test_without_report_launches_the_history_is_the_callers():
+    scene = c.load(c.scene_file("point_fog"), c.resolution(32, 24))
+    integ = mi.load_dict({"type": "raymarch"})
+    integ.render_layers(scene)
+    with kernel_log() as log:
+        result = integ.render_layers(scene)
+        dr.eval(result["full"])
+    assert "launches" not in result.stats and log.launched >= 1
+
+
+def test_launch_sites_charge_the_lines_that_launch():
+    scene = c.load(c.scene_file("point_fog"), c.resolution(32, 24))
+    integ = mi.load_dict({"type": "raymarch"})
+    dr.eval(mi.render(scene, integrator=integ, spp=1))
+    with launch_sites() as sites:
+        dr.eval(mi.render(scene, integrator=integ, spp=1))
+    assert sum(sites.values()) >= 4
+    assert all(site.split(":")[0].startswith(("integrators/", "rectify/")) or site.startswith("<")
+               for site in sites)
+    assert any("capture" in site for site in sites)
