@@ -22,7 +22,8 @@ from .fourier.prefilter import region_length
 from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
                                       projective_query_terms, texel_separated_kernel)
 from .fourier.quality import FILTER_RULE
-from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings, class_sums,
+from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
+                                    class_and_total_sums,
                                     near_band, near_step_weight, prefilter_rows,
                                     rectified_shadow_map, series_sum, series_unreliable,
                                     series_visibility)
@@ -510,11 +511,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             sub = smap if k < 2 else restrict_rows(smap, rows)
             V_series, drop = self.filtered(queries, sub, cover, w, self.clamp,
                                            band=self.exact_fallback)
-            lit, series = class_sums(smap, cover, w)
+            lit, series, P = class_and_total_sums(smap, cover, w)
             S = lit + series * V_series
             if tail is not None:
                 S += tail.correction(queries, cover, beta_b, w)
-            return S, cover.sum(w), near_step_weight(series, drop)
+            return S, P, near_step_weight(series, drop)
 
         S, P, near = interpolated_sum(refs, weighted_sum)
         return dr.select(P > 0.0, S / P, 1.0), S, P, near
@@ -525,8 +526,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         numerator S, denominator P and near-step weight; ``tail`` as
         :meth:`interpolated_average`."""
         V_series, drop = self.filtered(queries, smap, cover, w, clamp, band=self.exact_fallback)
-        P = cover.sum(w)
-        lit, series = class_sums(smap, cover, w)
+        lit, series, P = class_and_total_sums(smap, cover, w)
         S = lit + series * V_series
         if tail is not None:
             S += tail.correction(queries, cover, beta_b, w)
@@ -541,7 +541,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         judges)."""
         V0, drop = self.filtered(queries, smap, cover, parts.L, clamp=False,
                                  band=self.exact_fallback)
-        lit_L, series_L = class_sums(smap, cover, parts.L)
+        lit_L, series_L, P_L = class_and_total_sums(smap, cover, parts.L)
         S0 = series_L * V0                                      # Σ_series L V
         S = dr.zeros(mi.Float, queries.count)
         for a, b in zip(parts.A, parts.B):
@@ -552,7 +552,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             S += b * (lit + series_sum(smap, cover, w, Vn)
                       - dr.gather(mi.Float, shift, queries.row) * S0)
             dr.eval(S)          # one component at a time: the same kernels for any rank
-        return S, lit_L + S0, cover.sum(parts.L), near_step_weight(series_L, drop)
+        return S, lit_L + S0, P_L, near_step_weight(series_L, drop)
 
     def to_string(self):
         return (f"FourierFilterIntegrator[coefficients={self.M}, weights={self.weights}, "

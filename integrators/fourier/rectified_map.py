@@ -249,6 +249,19 @@ class Coverage:
         P = dr.block_prefix_sum(w, self.d, exclusive=True)
         return dr.gather(mi.Float, P, self.texel) + self.frac * dr.gather(mi.Float, w, self.texel)
 
+    def stacked_sums(self, stack, count: int) -> tuple:
+        """:meth:`sum` of each of the ``count`` (n·d) texel arrays laid one
+        after another in ``stack``, with one prefix sum over the stack (the
+        rows' blocks are summed as :meth:`sum` sums them: each result is
+        bit for bit its :meth:`sum`)."""
+        size = dr.width(stack) // count
+        P = dr.block_prefix_sum(stack, self.d, exclusive=True)
+        out = []
+        for k in range(count):
+            at = self.texel + scalar_u32(k * size)
+            out.append(dr.gather(mi.Float, P, at) + self.frac * dr.gather(mi.Float, stack, at))
+        return tuple(out)
+
 
 # --------------------------------------------------------------------------
 # The filter over the rows (§3.3)
@@ -312,7 +325,7 @@ def near_band(M: int) -> float:
 def near_step_weight(series, drop) -> mi.Float:
     """Σ w of the series texels in front of each query's depth whose depth
     lies within the band around the query's (about): their weight sum
-    ``series`` (:func:`class_sums`) times the ``drop`` of the filtered
+    ``series`` (:func:`class_and_total_sums`) times the ``drop`` of the filtered
     average across the band."""
     return series * dr.maximum(drop, 0.0)
 
@@ -335,12 +348,18 @@ def series_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Flo
     return cover.sum(dr.select(smap.series, w, 0.0)) * V_series
 
 
-def class_sums(smap: RectifiedShadowMap, cover: Coverage, w):
-    """(Σ_lit, Σ_series) of w_g clip(D − g, 0, 1) per query: the covered
-    weight of the lit texels and of the series texels (the shadowed sum
-    is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`)."""
-    return (cover.sum(dr.select(smap.lit, w, 0.0)),
-            cover.sum(dr.select(smap.series, w, 0.0)))
+def class_and_total_sums(smap: RectifiedShadowMap, cover: Coverage, w):
+    """(Σ_lit, Σ_series, Σ_all) of w_g clip(D − g, 0, 1) per query: the
+    covered weight of the lit texels, of the series texels and of all (the
+    shadowed sum is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`),
+    from one kernel and one prefix sum over the three masked copies of
+    ``w``."""
+    size = dr.width(w)
+    lane = dr.arange(mi.UInt32, 3 * size)
+    k, g = Divisor(size).divmod(lane)
+    keep = dr.select(k == 0, dr.gather(mi.Bool, smap.lit, g),
+                     dr.select(k == 1, dr.gather(mi.Bool, smap.series, g), True))
+    return cover.stacked_sums(dr.select(keep, dr.gather(mi.Float, w, g), 0.0), 3)
 
 
 def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:

@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import scalar_u32
+from ..core.opaque import Divisor, scalar_u32
 from ..epipolar.last_interval import LastInterval
 from ..epipolar.light_rays.directional import LightRays
 from .rectified_map import Coverage, query_beta_range, reference_angle
@@ -64,17 +64,25 @@ class KernelParts:
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
         CL = _channel_count(L, 2)
         L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
-        if A is None:             # the direct sum: no separated kernel
+        if A is None or not queries.count:    # the direct sum: no separated kernel
             return KernelParts(L_c, [], [])
         C, N = A.shape[2], A.shape[3]
         c = min(c, C - 1)
         stride = scalar_u32(C * N)
+        # which components this channel uses (some query's B is not 0): one
+        # kernel and one read for all N
+        term, q = Divisor(queries.count).divmod(dr.arange(mi.UInt32, N * queries.count))
+        b_all = dr.gather(mi.Float, B.array,
+                          dr.gather(mi.UInt32, queries.slot, q) * stride + scalar_u32(c * N) + term)
+        used = dr.zeros(mi.UInt32, N)
+        dr.scatter_reduce(dr.ReduceOp.Max, used, mi.UInt32(b_all != 0.0), term)
+        used = np.asarray(used)
         A_c, B_c = [], []
         for i in range(N):
+            if not used[i]:             # unused component of this channel
+                continue
             offset = scalar_u32(c * N + i)
             b = dr.gather(mi.Float, B.array, queries.slot * stride + offset)
-            if dr.all(b == 0.0):        # unused component of this channel
-                continue
             A_c.append(dr.gather(mi.Float, A.array, lanes * stride + offset))
             B_c.append(b)
         return KernelParts(L_c, A_c, B_c)
