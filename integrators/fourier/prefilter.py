@@ -95,8 +95,10 @@ def region_depth_bounds(z: mi.TensorXf, regions: int):
     row, i = idx // RL_o, idx % RL_o
     valid = i < n_o
     zi = dr.gather(mi.Float, z.array, row * n_o + i, valid)
-    z_lo = dr.block_reduce(dr.ReduceOp.Min, dr.select(valid, zi, dr.inf), L)
-    z_hi = dr.block_reduce(dr.ReduceOp.Max, dr.select(valid, zi, -dr.inf), L)
+    lo_in, hi_in = dr.select(valid, zi, dr.inf), dr.select(valid, zi, -dr.inf)
+    dr.eval(lo_in, hi_in)           # one kernel for both reductions' inputs
+    z_lo = dr.block_reduce(dr.ReduceOp.Min, lo_in, L)
+    z_hi = dr.block_reduce(dr.ReduceOp.Max, hi_in, L)
     return mi.TensorXf(z_lo, shape=(n_rows, regions)), mi.TensorXf(z_hi, shape=(n_rows, regions))
 
 

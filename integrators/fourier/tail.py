@@ -91,7 +91,8 @@ class TailVisibility:
         out = dr.zeros(mi.Float, dr.width(beta))
         if not self.traced:
             return out
-        q = dr.compress(self.runs())
+        # the traced queries: kept from the trace (no compression, no read)
+        q = self.idx if self.idx is not None else dr.compress(self.runs())
         if not dr.width(q):
             return out
         q = two_or_more(q)          # a single query: summed and written twice
