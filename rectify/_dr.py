@@ -49,6 +49,14 @@ def _opaque(tp, value):
     return tp(aligned(host, host.dtype))
 
 
+def opaque_unshared(tp, value):
+    """An opaque ``tp`` scalar of its own (never shared with an equal value,
+    unlike :func:`opaque_scalar`): for a value that may equal another of
+    the same kernel in one frame and not in the next, where sharing would
+    change the kernel's parameters (a new kernel) from frame to frame."""
+    return _opaque(tp, value)
+
+
 def opaque_scalar(tp, value):
     """An opaque ``tp`` scalar holding ``value`` (a kernel parameter, not a
     literal), or within :func:`shared_scalars` the one variable of that

@@ -25,7 +25,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify._dr import aligned, const, const_u32, opaque_scalar, shared_scalars  # noqa: F401
+from rectify._dr import (aligned, const, const_u32, opaque_scalar, opaque_unshared,  # noqa: F401
+                         shared_scalars)
 
 
 #: an opaque ``mi.Float`` / ``mi.UInt32`` holding a Python or NumPy number

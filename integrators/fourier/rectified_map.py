@@ -77,7 +77,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import Divisor, scalar_u32, two_or_more
+from ..core.opaque import Divisor, opaque_unshared, scalar_u32, two_or_more
 from ..epipolar.query_terms import cell_average
 from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
 
@@ -258,7 +258,7 @@ class Coverage:
         P = dr.block_prefix_sum(stack, self.d, exclusive=True)
         out = []
         for k in range(count):
-            at = self.texel + scalar_u32(k * size)
+            at = self.texel + opaque_unshared(mi.UInt32, k * size)
             out.append(dr.gather(mi.Float, P, at) + self.frac * dr.gather(mi.Float, stack, at))
         return tuple(out)
 

@@ -136,17 +136,20 @@ def take_light_rays(queries: EpipolarQueries, rays):
     return replace(rays, **values, row_id=mi.UInt32(queries.rows))
 
 
-def _finite_min(x) -> float | None:
-    v = mi.Float(x)
-    finite = dr.isfinite(v)
-    if not dr.width(v) or not dr.any(finite)[0]:
-        return None
-    return float(dr.min(dr.select(finite, v, dr.inf))[0])
-
-
-def _finite_max(x) -> float | None:
-    low = _finite_min(-mi.Float(x))
-    return None if low is None else -low
+def finite_mins(*xs) -> list:
+    """The smallest finite value of each array of ``xs`` (None where it has
+    none), the arrays evaluated together and each minimum read back as a
+    copy: no kernel and no read per array."""
+    ins = []
+    for x in xs:
+        v = mi.Float(x)
+        ins.append(dr.select(dr.isfinite(v), v, dr.inf))
+    dr.eval(ins)
+    out = []
+    for v in ins:
+        m = float(dr.min(v)[0]) if dr.width(v) else math.inf
+        out.append(None if m == math.inf else m)
+    return out
 
 
 def frame_choices(queries: EpipolarQueries, rays) -> tuple:
@@ -164,22 +167,28 @@ def frame_choices(queries: EpipolarQueries, rays) -> tuple:
     spacing, first cell and size) and the largest tan(β/2)·tan(γ_end/2).
     Everything else a row uses is its own.  Equal summaries mean equal
     choices; the caller renders a frame whose summary changed in full."""
-    def low(x):
-        m = _finite_min(x)
+    def low(m):
         return None if m is None else min(m, 0.0)
+
+    def neg(m):
+        return None if m is None else -m
     local = getattr(rays, "r_in", None) is not None
-    out = [("rows", queries.n, int(dr.sum(mi.UInt64(queries.slice_index))[0]) if queries.n else 0),
-           ("d", rays.d), ("shared", math.ceil(queries.shares - 1e-6)),
-           ("beta", _finite_min(queries.beta), _finite_max(queries.beta)),
-           ("gamma_max", _finite_max(rays.gamma_max))]
     if local:
         x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
-        out += [("lattice", _finite_max(rays.delta_gamma), _finite_min(rays.gamma_lo),
-                 int(dr.max(rays.offset)[0])),
-                ("x_max", _finite_max(x)),
-                ("light_side", low(scalar(queries.frame.light_distance) - rays.r_in))]
+        mins = finite_mins(queries.beta, -queries.beta, -rays.gamma_max, -rays.delta_gamma,
+                           rays.gamma_lo, -x, scalar(queries.frame.light_distance) - rays.r_in)
     else:
-        out += [("light_side", low(rays.h))]
+        mins = finite_mins(queries.beta, -queries.beta, -rays.gamma_max, rays.h)
+    out = [("rows", queries.n, int(dr.sum(mi.UInt64(queries.slice_index))[0]) if queries.n else 0),
+           ("d", rays.d), ("shared", math.ceil(queries.shares - 1e-6)),
+           ("beta", mins[0], neg(mins[1])),
+           ("gamma_max", neg(mins[2]))]
+    if local:
+        out += [("lattice", neg(mins[3]), mins[4], int(dr.max(rays.offset)[0])),
+                ("x_max", neg(mins[5])),
+                ("light_side", low(mins[6]))]
+    else:
+        out += [("light_side", low(mins[3]))]
     return tuple(out)
 
 
