@@ -99,7 +99,8 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     the SVD sample is taken on log-spaced grids with γ-quadrature weights
     and each view ray's kernel normalised (the paper's uniform grid loses
     10× accuracy in thick media and near the anti-epipole,
-    :func:`separate_channel`); each light-ray interval holds the exact mean
+    :func:`~integrators.epipolar.kernel.separation.separate_channel`); each light-ray interval
+    holds the exact mean
     of K over it, not a midpoint sample (:func:`~integrators.epipolar.query_terms.cell_average`).
 
     =========================  =============================================
@@ -201,8 +202,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
 
     def read_method_properties(self, props):
         self.prefilter = read_number(props, "prefilter", 4, minimum=1, maximum=16, integer=True)
-        self.blockers = read_choice(props, "blockers", "traced",
-                                         ("traced", "resampled"))
+        self.blockers = read_choice(props, "blockers", "traced", ("traced", "resampled"))
         self.adaptive_prefilter = read_bool(props, "adaptive_prefilter", True)
 
     def reuse_refusal(self):

@@ -114,7 +114,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                with ``epipolar_tree``)
     ``light_rays``             texels (light rays) per row; 0 (default):
                                4× ``epipolar_tree``'s automatic count, at
-                               most 1024 (:func:`auto_texels`); point/spot:
+                               most 1024 (:func:`~integrators.fourier.rows.auto_texels`);
+                               point/spot:
                                the widest row's, narrower rows get fewer
                                at the same angular spacing
     ``ring_degrees``           ray-marched ring around the (anti-)epipole
@@ -247,11 +248,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     # -- rectification: epipolar (template) or projective (§4.2) -------------------
     def choose_rows(self, params, cap):
         """The template's epipolar slices, or the projective map's rows when
-        :meth:`projective_plan` returns one (then also the plan);
+        :meth:`~integrators.fourier.rows.projective_plan` returns one (then also the plan);
         the render's ``stats["rectification_used"]`` says which it took."""
         plan = self.projective_plan(params, cap)
         self.record(rectification_used="epipolar" if plan is None else "projective")
-        if plan is None:     # Baran's slices, fine enough on small images (fourier_rows)
+        if plan is None:     # Baran's slices, fine enough on small images (fourier.rows)
             frame = epipolar_frame_of(params)
             cam = params.camera
             spacing = row_spacing(self.slice_spacing_for(cap), cam.width, cam.height)
@@ -272,7 +273,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     # -- the method ---------------------------------------------------------------
     def integrate_queries(self, params, cap, queries, plan=None):
         """L_scat of every query (§3, Listing 4); ``plan``: the projective
-        map's rows (:meth:`projective_plan`), None: epipolar slices."""
+        map's rows (:meth:`~integrators.fourier.rows.projective_plan`), None: epipolar slices."""
         rect = self.rectified_sums(params, cap, queries, plan)
         with self.stage("unrectify") as keep:
             V_near = near_visibility(queries, rect.rays, rect.beta_b)
@@ -390,7 +391,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         rays and their kernels of each σt (a grey medium's channels differ
         in the light's colour alone)."""
         kernels = {} if kernels is None else kernels
-        if self.exact_visibility(params):      # the direct sum (fourier_exact), no series
+        if self.exact_visibility(params):      # the direct sum (fourier.exact), no series
             with self.stage("evaluate") as keep:
                 # U from the query's own kernel too: the separated kernel's
                 # error is relative to the row's largest weight, which in a

@@ -194,8 +194,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         self.refinement_threshold = read_number(props, "refinement_threshold", 0.03, minimum=0.0)
         self.threshold_mode = read_choice(props, "threshold_mode", "relative", THRESHOLD_MODES)
         self.visibility_threshold = read_number(props, "visibility_threshold", 0.05, minimum=0.0)
-        self.blockers = read_choice(props, "blockers", "traced",
-                                         ("traced", "resampled"))
+        self.blockers = read_choice(props, "blockers", "traced", ("traced", "resampled"))
         self.light_rays = read_number(props, "light_rays", 0, minimum=0, maximum=1 << 16,
                                       integer=True)
         if self.light_rays & (self.light_rays - 1):

@@ -8,6 +8,7 @@ literals into new ones.  Everything uses the active Mitsuba variant's types
 from __future__ import annotations
 
 import contextvars
+import math
 from contextlib import contextmanager
 
 import drjit as dr
@@ -43,9 +44,18 @@ _DTYPES = {dr.VarType.Float32: np.float32, dr.VarType.Float64: np.float64,
 def _opaque(tp, value):
     """One evaluated entry of type ``tp`` holding ``value``, made from host
     memory: what ``dr.opaque`` makes, without the kernel that writes it
-    (a copy from a NumPy buffer, on the CPU none at all)."""
+    (a copy from a NumPy buffer, on the CPU none at all).  An integer type
+    takes whole numbers only (a fraction is a caller's bug, not a value
+    to truncate)."""
+    kind = dr.type_v(tp)
+    if kind not in _DTYPES:
+        raise TypeError(f"an opaque scalar of {tp.__name__} is not supported; use one of "
+                        f"{sorted(str(k) for k in _DTYPES)}.")
+    dtype = _DTYPES[kind]
+    if np.issubdtype(dtype, np.integer) and not (math.isfinite(value) and int(value) == value):
+        raise ValueError(f"opaque {tp.__name__} scalar {value!r} is not a whole number.")
     with np.errstate(over="ignore"):
-        host = np.asarray([value], dtype=_DTYPES[dr.type_v(tp)])
+        host = np.asarray([value], dtype=dtype)
     return tp(aligned(host, host.dtype))
 
 
@@ -64,7 +74,7 @@ def opaque_scalar(tp, value):
     cache = _SHARED.get()
     if cache is None:
         return _opaque(tp, value)
-    key = (tp, value)
+    key = (tp, value, math.copysign(1.0, value))     # -0.0 is not +0.0 (1/x, atan2)
     var = cache.get(key)
     if var is None:
         var = cache[key] = _opaque(tp, value)

@@ -50,3 +50,49 @@ def test_shared_scalars_give_one_variable_per_value_without_aliasing():
         a += 1.0                       # an in-place update reaches no other handle
         assert float(b[0]) == 1.5 and float(scalar(1.5)[0]) == 1.5
     assert scalar(1.5).index != scalar(1.5).index   # outside a render: fresh ones
+
+
+def test_opaque_scalars_keep_the_sign_of_zero_and_refuse_fractions():
+    """-0.0 and +0.0 are two values (1/x, atan2 tell them apart), so a
+    render's shared scalars keep them apart; an integer scalar takes whole
+    numbers only; both kinds are made without a kernel."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+    import pytest
+
+    from rectify._dr import opaque_scalar, opaque_unshared, shared_scalars
+
+    with shared_scalars():
+        pos, neg = opaque_scalar(mi.Float, 0.0), opaque_scalar(mi.Float, -0.0)
+        assert np.array(dr.rcp(pos))[0] == np.inf and np.array(dr.rcp(neg))[0] == -np.inf
+        with pytest.raises(ValueError, match="whole number"):
+            opaque_scalar(mi.UInt32, 3.7)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    a, b = opaque_unshared(mi.UInt32, 5), opaque_unshared(mi.UInt32, 5)
+    assert [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT] == []
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert a.index != b.index and np.array(a)[0] == 5
+
+
+def test_equal_sizes_in_one_frame_and_not_the_next_write_one_kernel():
+    """Sizes are unshared opaque scalars: whether two of them are equal does
+    not change the kernel (shared by value, it did)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from episcatter.kernels import kernel_log
+    from rectify._dr import opaque_unshared, shared_scalars
+
+    def frame(r, d):
+        with shared_scalars():
+            x = dr.arange(mi.UInt32, 64)
+            y = x * opaque_unshared(mi.UInt32, r) + opaque_unshared(mi.UInt32, d)
+            dr.eval(y)
+
+    frame(7, 9)
+    with kernel_log() as log:
+        frame(8, 8)
+        frame(5, 6)
+    assert log.launched == 2 and log.compiled == 0

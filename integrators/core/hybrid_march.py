@@ -6,7 +6,7 @@ covered by boxes (its bounding box, or ``clusters`` boxes of its triangles)
 and each box is extruded away from the light into a bounded shadow volume
 (:mod:`integrators.partial.change_mask`).  Outside the union of the volumes no
 light ray can be blocked, so ``V = 1`` there exactly; the marcher
-(:func:`integrators.raymarch.march` with ``shadow_range``) traces its
+(:func:`~integrators.core.marching.march` with ``shadow_range``) traces its
 ray tests only at the steps inside the hull ``[t_lo, t_hi]`` of the pieces
 of the camera segment inside a volume (Wyman & Ramsey march between the
 first and the last shadow-volume face a ray crosses) and evaluates the lit

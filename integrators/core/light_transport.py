@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from .opaque import colour as color
 from .opaque import point, scalar, vector

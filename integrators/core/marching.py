@@ -288,7 +288,8 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     def lit(t, active=True, before=False):
         """ℓ(t), a lit verdict where ℓ was not lit ``before`` (at the previous
         test point; False: always) confirmed by a shifted shadow ray
-        (:func:`visible_confirmed`): where ℓ rises and inside the bisections
+        (:func:`~integrators.core.light_transport.visible_confirmed`): where ℓ rises and inside
+        the bisections
         are the only places where a ray slipping through a mesh crack adds
         light."""
         pt = point_terms(params, cap, dr.minimum(t, t_test_max), active)

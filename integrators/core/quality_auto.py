@@ -245,36 +245,6 @@ def probe_errors(probe: Probe, settings, budget: float):
     return first, e1, probe.error(second)
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0, seed=0):
     """(settings, stats) of ``method`` for ``budget`` on ``scene``: the
     rule's choice and what the probe measured (its errors, its time)."""
@@ -291,7 +261,7 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
         raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
     t0 = time.perf_counter()
     probe = Probe(scene, sensor, method, base or {}, seed=seed)
-    settings = RULES[method].choose(probe, float(budget), None)
+    settings = RULES[method].choose(probe, float(budget), FIT[method])
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
                       "auto_probe_pixels": int(len(probe.pixels))}, probe
 

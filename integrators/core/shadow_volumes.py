@@ -2,6 +2,24 @@
 of their triangles), the planes of each box's shadow volume from the light,
 and the clipping of view-ray segments against them (DESIGN §3).  Used by
 the hybrid march and by the change mask of animations.
+
+The shadow volume is bounded conservatively: each object is covered by
+axis-aligned boxes (its bounding box, or the boxes of clusters of its
+triangles, :func:`shape_boxes`), and each box ``B`` is extruded away from
+the light to infinity:
+
+* directional light toward ``l``: ``SV(B) = {x : x + s·l ∈ B for some s ≥ 0}``;
+* point/spot light at ``p``: ``SV(B) = {p + λ(y − p) : y ∈ B, λ ≥ 1}``
+  (the spot cone is ignored: conservative).
+
+Both are convex polyhedra (the box's faces that face the light plus the
+supporting planes through the light and the box's silhouette edges;
+:func:`shadow_volume_planes`), so a camera segment meets one iff
+Cyrus–Beck clipping against its planes leaves a non-empty interval
+``[t0, t1]`` (:func:`clip_segments`, Dr.Jit, one kernel for any number of
+volumes).  A light inside a box makes that volume everything.  Every box is
+padded by ``PAD`` (relative to the medium box's diagonal) to absorb float
+rounding of the ray tests.
 """
 from __future__ import annotations
 

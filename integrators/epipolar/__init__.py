@@ -53,7 +53,8 @@ Light rays (:func:`~integrators.epipolar.light_rays.directional.light_ray_grid`)
     largest ``γ_end`` of the row's queries; light ray (leaf) ``g`` covers
     ``[g, g+1)·Δγ``, ``Δγ = γ_max / d``.  A query's depth is the fractional
     light-ray index ``D = γ_end / Δγ`` (§5).
-Blocker map (:func:`~integrators.epipolar.blockers.trace_blocker_angles`, :func:`~integrators.epipolar.blockers.shadow_map_blocker_angles`)
+Blocker map (:func:`~integrators.epipolar.blockers.trace_blocker_angles`,
+:func:`~integrators.epipolar.blockers.shadow_map_blocker_angles`)
     Light ray γ of slice α is first blocked (coming from the light) at the
     axial coordinate ``u_b``; its points with ``u < u_b`` are in shadow, so
     view ray β is shadowed on it iff ``β > S := atan2(γ, u_b)`` (``S = π``
@@ -63,11 +64,13 @@ Blocker map (:func:`~integrators.epipolar.blockers.trace_blocker_angles`, :func:
     :class:`~integrators.core.capture.ShadowMap` (nearest texel), as in the paper.
     Prefiltering (§7, Fig. 7): ``k`` stratified jittered sub-rays per
     light-ray interval give up to ``k`` depth modes of weight ``1/k``.
-    :func:`~integrators.epipolar.blockers.blocker_modes` converts blocker angles to the sweep's view-ray
+    :func:`~integrators.epipolar.blockers.blocker_modes` converts blocker angles to the sweep's
+    view-ray
     index units: the number of the row's queries with ``β_q ≤ S`` (a mode
     at index ``m`` acts on queries ``m, m+1, ...``, i.e. exactly those with
     ``β_q > S``), merging sub-rays that land on the same index.
-Light side (:func:`~integrators.epipolar.light_rays.directional.light_ray_grid`, :func:`~integrators.epipolar.light_factor.light_side_factor`)
+Light side (:func:`~integrators.epipolar.light_rays.directional.light_ray_grid`,
+:func:`~integrators.epipolar.light_factor.light_side_factor`)
     With the medium box, the light-side path length of a point is
     ``τ = h(α, γ) − u``, ``h`` the axial coordinate where light ray γ leaves
     the box toward the light (DESIGN §1).  Hence
@@ -80,20 +83,25 @@ Light side (:func:`~integrators.epipolar.light_rays.directional.light_ray_grid`,
     stored relative to the row's smallest ``h`` (``h_ref``: keeps thick
     media inside float32's range); ``K`` is averaged exactly over the
     light-ray interval: ``K(γ_g, β)·φ(σt tan(β/2) Δγ)``, ``γ_g`` the
-    interval's start, ``φ(x) = (1 − e^{-x})/x`` (:func:`~integrators.epipolar.query_terms.cell_average`).
-Per-query terms (:func:`~integrators.epipolar.query_terms.directional_query_terms`, :func:`~integrators.epipolar.query_terms.assemble_queries`)
+    interval's start, ``φ(x) = (1 − e^{-x})/x``
+    (:func:`~integrators.epipolar.query_terms.cell_average`).
+Per-query terms (:func:`~integrators.epipolar.query_terms.directional_query_terms`,
+:func:`~integrators.epipolar.query_terms.assemble_queries`)
     ``L_scat = e^{σt (t_near − h_ref)} σs f_p E [Δγ φ/sin β · Σ_γ L K V cover − N]``:
     Mitsuba's phase function ``f_p`` (``phase_eval``, per query at its own
     ω) and delivered irradiance ``E`` (``sample_light``), the factor
     ``Δγ / sin β`` (``ds/dγ``, §4 Eq. 3), ``N`` the closed-form integral
     over ``[0, t_near]`` between pinhole and near plane (lit as the first
-    light ray of the map says, :func:`~integrators.epipolar.query_terms.first_leaf_visibility`), which the
+    light ray of the map says,
+    :func:`~integrators.epipolar.query_terms.first_leaf_visibility`), which the
     rectified sum includes but the camera ray does not, and
     ``e^{σt t_near}``, which re-bases the camera-side transmittance to the
     ray origin.  The light-ray interval in which the view ray ends counts
     the exact visibility of its covered part where its depth modes are
-    mixed (:func:`~integrators.epipolar.last_interval.last_interval_visibility`, :func:`~integrators.epipolar.last_interval.last_interval_correction`).
-Ring (§6; :func:`~integrators.epipolar.frame.in_ring`, :func:`~integrators.epipolar.ring.march_ring`)
+    mixed (:func:`~integrators.epipolar.last_interval.last_interval_visibility`,
+    :func:`~integrators.epipolar.last_interval.last_interval_correction`).
+Ring (§6; :func:`~integrators.epipolar.frame.in_ring`,
+:func:`~integrators.epipolar.ring.march_ring`)
     Samples whose view ray is within ``ring_deg`` of ``±w_l`` (rectify's
     :func:`~rectify.ring_mask` definition, evaluated at the sample's own
     direction) are ray-marched by brute force with exact (ray-traced)
@@ -101,8 +109,10 @@ Ring (§6; :func:`~integrators.epipolar.frame.in_ring`, :func:`~integrators.epip
     within ``MIN_RING_RAD`` of the axis are always marched (``sin β → 0``).
 
 Point and spot lights (§9): :func:`~integrators.epipolar.frame.epipolar_frame_of`,
-:func:`~integrators.epipolar.queries.assign_queries`, the light-ray offset ``γ_lo`` of :class:`~integrators.epipolar.light_rays.directional.LightRays`,
-:func:`~integrators.epipolar.light_rays.layout.rectified_depth` and the sub-ray and blocker-mode functions serve
+:func:`~integrators.epipolar.queries.assign_queries`, the light-ray offset ``γ_lo`` of
+:class:`~integrators.epipolar.light_rays.directional.LightRays`,
+:func:`~integrators.epipolar.light_rays.layout.rectified_depth` and the sub-ray and
+blocker-mode functions serve
 them too, with γ the angle at the light (``rectify`` conventions); the
 rest of the local-light maths (blockers traced from the light, intensity,
 kernel, per-query terms) is in the point and spot light sections below.
@@ -146,7 +156,8 @@ enters the medium box, 0 for a light inside it; ``x`` is always inside)
 and stable; x < 1 ⟺ β+γ < π).  ``I(α, γ)`` is Mitsuba's intensity with the
 spot fall-off and projected texture: per light ray, initialised into the
 tree like §6's textured light, together with ``e^{-σt (L − r_in)}``
-(:func:`~integrators.epipolar.local_light_factor.light_ray_factor`).  For L → ∞ with γ = γ_dir/L the kernel becomes
+(:func:`~integrators.epipolar.local_light_factor.light_ray_factor`).  For L → ∞ with γ =
+γ_dir/L the kernel becomes
 the directional ``e^{-σt γ_dir tan(β/2)}``.
 
 Visibility
@@ -155,16 +166,19 @@ On light ray γ, ``dr/dβ = L sin γ / sin²(β+γ) > 0``: the distance from the
 light grows with β.  A light ray first blocked at ``r_b`` shades exactly
 the view rays with ``β > β_b``, β_b = the eye's angle of the blocker point:
 the directional rule, so the sweep over increasing β (Fig. 6) needs no
-change (:func:`~integrators.epipolar.local_blockers.trace_local_blocker_angles`, traced from ``p_l``;
-:func:`~integrators.epipolar.shadow_map_blocker_angles` with
-:func:`~integrators.epipolar.local_blockers.radial_map_point` and :func:`~integrators.epipolar.local_blockers.radial_blocker_beta`, read from the
+change (:func:`~integrators.epipolar.local_blockers.trace_local_blocker_angles`, traced from
+``p_l``;
+:func:`~integrators.epipolar.blockers.shadow_map_blocker_angles` with
+:func:`~integrators.epipolar.local_blockers.radial_map_point` and
+:func:`~integrators.epipolar.local_blockers.radial_blocker_beta`, read from the
 perspective/cube shadow map).
 
 Light rays (:func:`~integrators.epipolar.light_rays.local.local_light_ray_grid`)
 -----------------------------------------
 Row α needs ``[γ_lo, γ_hi]``: ``[0, max γ_end]`` for a point light, clipped
 to the spot cone's γ-interval in the slice for a spot light
-(:func:`~integrators.epipolar.light_rays.local.cone_interval`; rows outside the cone are dark: one light ray, no
+(:func:`~integrators.epipolar.light_rays.local.cone_interval`; rows outside the cone are dark:
+one light ray, no
 updates, the sweep's closed form).  Uniform in γ = uniform in ``∫ dt/r²``
 (equiangular sampling).  All rows share one lattice ``γ = j·Δγ`` (Δγ: the
 widest row's range / (d − 1)); a row starts at a lattice point and has
@@ -180,5 +194,5 @@ origin (``e^{σt t_near}``), minus the part between pinhole and near plane
 (one midpoint sample of the exact integrand, lit as the first leaf says).
 
 Ring (§6): view rays within ``ring_degrees`` of the light or of its
-opposite are ray-marched (:func:`~integrators.epipolar.march_ring`).
+opposite are ray-marched (:func:`~integrators.epipolar.ring.march_ring`).
 """

@@ -66,7 +66,8 @@ DENSE_ROW = 0.15
 
 def _blocker_depth(params, queries: EpipolarQueries, s, gamma):
     """(hit, u_b) of the light rays (row s, γ), traced from above the scene
-    along -w_l (:func:`first_blocker`): whether a blocker is met and its
+    along -w_l (:func:`~integrators.core.light_transport.first_blocker`): whether a blocker is
+    met and its
     axial coordinate."""
     frame = queries.frame
     U = scalar(_light_top(params, frame))
@@ -128,7 +129,8 @@ def _smooth_intervals(queries: EpipolarQueries, rays: LightRays, s_b, gamma_b, h
 
 class SubRayBlockers(NamedTuple):
     """Blocker angles of the sub-rays (n·d·k lanes) and, where known, the
-    range [lo, hi] their row index (:func:`searchsorted_rows`) lies in."""
+    range [lo, hi] their row index (:func:`~integrators.epipolar.queries.searchsorted_rows`)
+    lies in."""
     angle: mi.Float
     lo: mi.UInt32 | None = None
     hi: mi.UInt32 | None = None
@@ -274,7 +276,7 @@ def merge_modes(index: mi.UInt32, k: int):
 def blocker_modes(queries: EpipolarQueries, rays: LightRays, beta_b, k: int) -> BlockerModes:
     """Blocker angles of k sub-rays per light ray (a Float, or
     :class:`SubRayBlockers` with index bounds) -> depth modes in the
-    sweep's index units (module doc), (n, d, k) tensors."""
+    sweep's index units (:mod:`integrators.epipolar`, "Blocker map"), (n, d, k) tensors."""
     s, _, _ = rays.lanes(k)
     if not isinstance(beta_b, SubRayBlockers):
         beta_b = SubRayBlockers(beta_b)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 def factor_layout(shape, with_n_axis: int, name: str = "factor"):
     """(rows ∈ {1, n}, length, C, has colour axis) of an A/B
-    (``with_n_axis`` = 1: the trailing N axis) or L (0) shape, as the
-    module docstring lists them."""
+    (``with_n_axis`` = 1: the trailing N axis) or L (0) shape, as
+    :mod:`integrators.tree.partial_sum_tree` lists them ("Shapes")."""
     core = len(shape) - with_n_axis
     if core == 1 and with_n_axis:          # (d, N): shared by every slice
         return 1, shape[0], 1, False

@@ -224,7 +224,8 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
     light on the terrain), where the exact sum is 0.  Invisible, but HDR
     metrics on mostly black references amplify it (FLIP 0.39 on terrain,
     0.92 on beam); so do the cancellations of the near-plane and
-    last-interval corrections.  :func:`assemble_queries` returns 0 for a
+    last-interval corrections.  :func:`~integrators.epipolar.query_terms.assemble_queries`
+    returns 0 for a
     query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
     of its parts -- below their own rounding error.  (Counted over the
     whole row, the bound flushed lit queries that end early in a row whose
@@ -278,7 +279,7 @@ def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -
     e^{20…30} while the view ray's kernel decays as fast (a thick medium
     seen away from a light whose light-side path shrinks along the slice,
     random stress seed 31: 28× the exact sum).  Such samples are ray-marched
-    instead (:func:`remarch_samples`)."""
+    instead (:func:`~integrators.epipolar.ring.remarch_samples`)."""
     if not queries.count:
         return dr.zeros(mi.UInt32, 0)
     bad = mi.Bool(False)

@@ -18,7 +18,8 @@ from .queries import EpipolarQueries
 def light_side_gains(sigma_t, path: mi.Float) -> list[float]:
     """Per channel of extinction ``sigma_t``: e^{-σt·min(lowest, 0)}, at
     most e^{c}, ``lowest`` the smallest finite light-side path length of
-    ``path`` (a directional light's h, :func:`row_reference`; a point
+    ``path`` (a directional light's h,
+    :func:`~integrators.epipolar.light_rays.directional.row_reference`; a point
     light's L − r_in): how much the light-side factor (e^{-σt h_ref}·L of
     the kept light rays) amplifies the tree's absolute errors.  The
     automatic SVD rank divides its tolerance by it."""
@@ -46,7 +47,7 @@ def light_side_extinction(sigma_t: float, path, ref=None):
     factor above 1, but each of its points is at least |path| from the eye,
     so it contributes at most e^{-σt |path|} of the unattenuated single
     scattering: dropping those beyond c keeps every factor ≤ e^{c}
-    (:func:`row_reference`)."""
+    (:func:`~integrators.epipolar.light_rays.directional.row_reference`)."""
     rel = path if ref is None else path - ref
     st = scalar(sigma_t)
     return dr.select(dr.isfinite(rel) & (-st * path <= LIGHT_SIDE_RANGE), dr.exp(-st * rel), 0.0)
@@ -69,7 +70,8 @@ def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.T
     """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} at every light ray's centre:
     (n, d) if σt is grey, else (n, d, 3).  Relative to the row's h_ref so
     that thick media stay inside float32's range; the factor e^{-σt h_ref}
-    is applied per query (:func:`directional_query_terms`).  Light rays
+    is applied per query (:func:`~integrators.epipolar.query_terms.directional_query_terms`). 
+    Light rays
     with σt·h < −c are 0 (:func:`light_side_extinction`); so
     e^{-σt h_ref}·L ≤ e^{c} everywhere."""
     s, _, _ = rays.lanes()

@@ -113,10 +113,11 @@ class LightModel:
 
     def resample_blockers(self, params, queries, rays, shadow_map, k: int = 1):
         """Blocker angle of ``k`` sub-rays per light ray from a shadow map
-        (one path for both kinds, :func:`~integrators.epipolar.blockers.shadow_map_blocker_angles`)."""
+        (one path for both kinds,
+        :func:`~integrators.epipolar.blockers.shadow_map_blocker_angles`)."""
         return shadow_map_blocker_angles(params, queries, rays, shadow_map, self, k)
 
-    #: the light kind's stages of the kernel separation (:func:`separate_kernel`)
+    #: the light kind's stages of the kernel separation (:func:`~integrators.epipolar.kernel.separation.separate_kernel`)
     separation = None
 
     def separated_kernel(self, params, queries, rays, rank: int, tol: float, frame_rays=None,

@@ -93,7 +93,8 @@ def reaches_asymptote_band(queries: EpipolarQueries, rays: LocalLightRays,
 def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLightRays, A, B, L,
                                modes, last, band_cells: int) -> mi.Color3f:
     """Per query, the change of the sweep's sum when its light-ray cells in
-    the asymptote band (:class:`LocalSeparation` with ``band_cells``: the
+    the asymptote band (:class:`~integrators.epipolar.kernel.local.LocalSeparation` with
+    ``band_cells``: the
     lattice cells from ⌊(π − β)/Δγ⌋ − band_cells on) take the exact mean
     of K over their covered part instead of the banded kernel's Σ_i A_i B_i
     (added to ``terms.last``, integral units: Σ_g L_g V_g (K̄_g − K̃_g) cover_g).
@@ -105,7 +106,7 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     :func:`~integrators.epipolar.last_interval.last_interval_correction` has already
     turned the sweep's V_leaf into it); ``modes`` None: every cell before
     the last is lit (``fourier_filter``'s unshadowed sum U); the exact mean
-    is :meth:`LocalKernel.cell_mean` over the covered part."""
+    is :meth:`~integrators.epipolar.kernel.local.LocalKernel.cell_mean` over the covered part."""
     out = dr.zeros(mi.Color3f, queries.count)
     if not band_cells or not queries.count:
         return out
@@ -166,7 +167,7 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
 
 def local_query_terms(params, cap, queries: EpipolarQueries, rays: LocalLightRays, colour,
                       V_near=1.0) -> QueryTerms:
-    """Per-query factors (module doc) for
+    """Per-query factors (:mod:`integrators.epipolar`, "Per query") for
     :func:`~integrators.epipolar.query_terms.assemble_queries`:
     ``radiance = e^{σt t_near}``, ``view = σs·colour·Δγ / (L sin β)``,
     ``near = V_near ·`` :func:`near_segment`."""

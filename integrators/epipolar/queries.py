@@ -27,7 +27,7 @@ from .frame import PAD_BETA, in_ring
 
 @dataclass(eq=False)
 class EpipolarQueries:
-    """Camera samples as queries of their nearest slice's sweep (module doc).
+    """Camera samples as queries of their nearest slice's sweep (:mod:`integrators.epipolar`, "Queries").
 
     Row arrays have ``n`` entries, query arrays ``Q`` (sorted by row, then β);
     ``ring_sample`` lists the camera samples to ray-march instead."""
@@ -93,7 +93,7 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     nobody's nearest, or within ``SNAP`` of a slice, takes its nearest
     slice's answer alone (weight 1).  Such a *lone* sample (not snapped)
     also asks the used slice on its far side, with weight 0, so that
-    :func:`disagreeing_samples` sees a shadow edge passing between the
+    :func:`~integrators.epipolar.ring.disagreeing_samples` sees a shadow edge passing between the
     sample and its nearest slice (the beam's edge 0.05 px from a pixel
     centre at 24×18, where the nearest slice was lit and the pixel centre's
     ray is not)."""

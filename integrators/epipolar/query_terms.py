@@ -23,10 +23,12 @@ from .queries import EpipolarQueries
 
 @dataclass(eq=False)
 class QueryTerms:
-    """Per-query factors of the directional-light formulation (module doc);
+    """Per-query factors of the directional-light formulation (:mod:`integrators.epipolar`, "Per-query terms");
     ``last``: the change of the rectified integral when the last, partial
-    light-ray interval takes the visibility of :func:`last_interval_visibility`
-    instead of its leaf's (:func:`last_interval_correction`; 0: none)."""
+    light-ray interval takes the visibility of
+    :func:`~integrators.epipolar.last_interval.last_interval_visibility`
+    instead of its leaf's
+    (:func:`~integrators.epipolar.last_interval.last_interval_correction`; 0: none)."""
     radiance: mi.Color3f    # σs · f_p · E · e^{-σt h_ref} · e^{σt t_near}
     view: mi.Color3f        # Δγ / sin β · φ(σt tan(β/2) Δγ)
     near: mi.Color3f        # V · ∫ over [0, t_near] of e^{-σt (h(0) − h_ref)} e^{-σt t(1−cos β)} dt
@@ -39,7 +41,8 @@ def first_leaf_visibility(queries: EpipolarQueries, modes: BlockerModes,
     """V(γ ∈ leaf 0, β_q) per query from the blocker modes: the visibility of
     the rectified map next to the eye, which the sweep applies to the part
     of the view ray in front of the near plane.  With ``last``
-    (:func:`last_interval_visibility`), queries whose view ray ends in leaf
+    (:func:`~integrators.epipolar.last_interval.last_interval_visibility`), queries whose view
+    ray ends in leaf
     0 take the last interval's visibility instead: the near segment is part
     of that interval and must be removed with the visibility it was counted
     with."""
@@ -60,8 +63,9 @@ def cell_average(x):
 
 def directional_query_terms(params, cap: CameraCapture, queries: EpipolarQueries,
                             rays: LightRays, V_near=1.0) -> QueryTerms:
-    """Per-query factors (module doc); ``V_near``: visibility of the segment
-    between pinhole and near plane (:func:`first_leaf_visibility`)."""
+    """Per-query factors (:mod:`integrators.epipolar`, "Per-query terms");
+    ``V_near``: visibility of the segment between pinhole and near plane
+    (:func:`first_leaf_visibility`)."""
     sigma_t = color(params.medium.sigma_t)
     omega = dr.gather(mi.Vector3f, cap.omega, queries.sample)
     o = dr.gather(mi.Point3f, cap.o, queries.sample)

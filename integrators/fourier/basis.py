@@ -243,7 +243,8 @@ def unblocked_rows(z_rows) -> mi.Bool:
     """Rows whose texels are all unblocked (``z ≥ 1``): their visibility is
     exactly 1 for every ``z_r ≤ 1``, so the integrator can use the closed form.
 
-    (With ``exact_bounds`` :func:`filtered_visibility` already returns exactly 1
+    (With ``exact_bounds`` :func:`~integrators.fourier.prefilter.filtered_visibility` already
+    returns exactly 1
     there; the plain Eq. 9 series gives ≈ 0.5 at ``z_r`` = 0 or 1, see module doc.)
     """
     z = mi.TensorXf(z_rows)

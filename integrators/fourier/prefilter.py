@@ -235,18 +235,19 @@ def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
     """Filtered (weighted average) visibility ``V̄`` of view rays (Listing 4, Eq. 7).
 
     ``row`` (mi.UInt32): epipolar slice; ``j`` (mi.Float): continuous texel
-    coordinate of the ray's end (clamped to ``[0, n−1]``, see module doc);
+    coordinate of the ray's end (clamped to ``[0, n−1]``, see :mod:`integrators.fourier.basis`);
     ``z_r`` (mi.Float): the ray's rectified depth.  Per lookup
     ``v = a(z_r)·B̄ + 0.5`` (clamped to [0, 1] if ``clamp``, Appendix A), combined
     with the weight sums ``W`` so that regions and fractional ``j`` give the
     weighted average over texels ``[0, j]``.  Multiply by ``σ_t ∫_0^s T`` (or the
     weight sum) to get the sum of Eq. 11.  ``exact_bounds`` uses each region's
-    depth range (module doc; ``False`` = the series as published).  Lanes
+    depth range (:mod:`integrators.fourier.basis`; ``False`` = the series as published).  Lanes
     with ``active`` false or a zero weight sum return 1.  Cost: ``2·M`` gathers
     (``(R + 1)·M`` with ``R`` regions) and one coefficient set per pixel.
 
     ``band`` > 0: ``(V̄, drop)``, also the drop of the (unclamped) series
-    average from ``z_r − band`` to ``z_r + band`` (:func:`band_drop_weights`:
+    average from ``z_r − band`` to ``z_r + band``
+    (:func:`~integrators.fourier.basis.band_drop_weights`:
     the same gathers, one more dot product; 0 in a region whose depth
     range ``exact_bounds`` decides exactly): about the weighted share of the
     texels whose depth lies within ``band`` of the ray's, where the series

@@ -1,6 +1,23 @@
 """Light rays of Klehm et al. 2014's projective rectification (§4.2):
 texel columns over the projective map's rows, their blockers and their
 separated kernel.
+
+Projective rectification (Klehm §4.2)
+-------------------------------------
+:class:`~integrators.fourier.projective_rays.ProjectiveLightRays`: the rows of
+:func:`~rectify.projective.projective_rows` with texels equally spaced in
+1/x (:func:`~rectify.projective.projective_columns`), so texels are
+unequally wide.  Coverage uses the fractional texel index of
+:meth:`~integrators.fourier.projective_rays.ProjectiveLightRays.query_depth` (the fraction
+linear in γ), the
+weights carry the integral over each texel (:func:`texel_integral`: Eq. 12
+with the map's own edges; :func:`~integrators.fourier.projective_rays.texel_separated_kernel`),
+and the
+per-query terms (:func:`~integrators.fourier.projective_rays.projective_query_terms`) divide by
+sin β only.
+NumPy oracles: :func:`~integrators.fourier.projective_rays.query_depth_reference`,
+:func:`texel_integral_reference`, :func:`eq12_weights_reference` (Eq. 12
+as printed).
 """
 from __future__ import annotations
 

@@ -52,19 +52,8 @@ fraction of the next texel (:class:`Coverage`).  In
 the same coverage is ``j = D − 1`` (texel-centre convention; ``D < 1``
 clamps to texel 0, which changes the weight sum, not the average).
 
-Projective rectification (Klehm §4.2)
--------------------------------------
-:class:`ProjectiveLightRays`: the rows of
-:func:`~rectify.projective.projective_rows` with texels equally spaced in
-1/x (:func:`~rectify.projective.projective_columns`), so texels are
-unequally wide.  Coverage uses the fractional texel index of
-:meth:`ProjectiveLightRays.query_depth` (the fraction linear in γ), the
-weights carry the integral over each texel (:func:`texel_integral`: Eq. 12
-with the map's own edges; :func:`texel_separated_kernel`), and the
-per-query terms (:func:`projective_query_terms`) divide by sin β only.
-NumPy oracles: :func:`query_depth_reference`,
-:func:`texel_integral_reference`, :func:`eq12_weights_reference` (Eq. 12
-as printed).
+Klehm's projective rectification (§4.2) and its texels:
+:mod:`integrators.fourier.projective_rays`.
 
 Everything Dr.Jit on the active variant.
 """
@@ -354,7 +343,9 @@ def class_and_total_sums(smap: RectifiedShadowMap, cover: Coverage, w):
     shadowed sum is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`),
     from one kernel and one prefix sum over the three masked copies of
     ``w``."""
-    size = dr.width(w)
+    size = dr.width(smap.lit)
+    if dr.width(w) != size:
+        w = dr.zeros(mi.Float, size) + w         # a width-1 weight: every texel's
     lane = dr.arange(mi.UInt32, 3 * size)
     k, g = Divisor(size).divmod(lane)
     keep = dr.select(k == 0, dr.gather(mi.Bool, smap.lit, g),

@@ -6,7 +6,8 @@ rays in a 1-D family: the light rays ``γ`` of the slice (:mod:`rectify.coords`;
 directional: distance from the camera–light axis, point/spot: angle at the
 light from the direction light → eye).  Slice ``k`` gets ``n`` texels (a
 power of two, the tree's leaves) at ``γ_i = γ_lo + (i + ½) Δ`` covering the
-``γ`` its samples' rays reach (spot: clipped to the cone, :func:`cone_interval`).
+``γ`` its samples' rays reach (spot: clipped to the cone,
+:func:`~integrators.epipolar.light_rays.local.cone_interval`).
 
 Per texel: the depth ``z_b`` of the first blocker along the light ray
 (directional: from a plane beyond the scene, ``u_top − u``; point/spot: the
@@ -18,7 +19,8 @@ distance, and the light-side entry factor of a light outside the box,
 * ``traced``: each texel's light ray traced with Mitsuba (exact blockers);
 * ``resampled``: read from the classic shadow map; each texel stores the
   min and max depth of the shadow-map texels any point of its cell may filter
-  (:meth:`ShadowMap.depth_bounds`), so a min/max test never disagrees with
+  (:meth:`~integrators.core.capture.ShadowMap.depth_bounds`), so a min/max test never disagrees
+  with
   the per-texel PCF march, which reads the shadow map itself at the leaves.
 """
 from __future__ import annotations
@@ -200,7 +202,8 @@ def cell_depth_bounds(frame, shadow_map, alpha, gamma, delta, k, u_top, o, w):
     """Conservative (min, max) blocker depth of the shadow-map texels that
     PCF may read for any point of a texel cell (probes along the cell,
     each bounding the taps within half a shadow-map texel,
-    :meth:`ShadowMap.depth_bounds`; conservative while a cell spans at most
+    :meth:`~integrators.core.capture.ShadowMap.depth_bounds`; conservative while a cell spans
+    at most
     two shadow-map texels, which the default ``light_rays`` ensures)."""
     dg = dr.gather(mi.Float, floats(delta), k)
     z_lo = dr.full(mi.Float, dr.inf, dr.width(gamma))

@@ -12,23 +12,7 @@ shadow volume of a moving object in the previous or the current frame
 (which also catches every sample whose ``d`` changes, :func:`change_mask`);
 every other sample keeps its value exactly.
 
-The shadow volume is bounded conservatively: each object is covered by
-axis-aligned boxes (its bounding box, or the boxes of clusters of its
-triangles, :func:`shape_boxes`), and each box ``B`` is extruded away from
-the light to infinity:
-
-* directional light toward ``l``: ``SV(B) = {x : x + s·l ∈ B for some s ≥ 0}``;
-* point/spot light at ``p``: ``SV(B) = {p + λ(y − p) : y ∈ B, λ ≥ 1}``
-  (the spot cone is ignored: conservative).
-
-Both are convex polyhedra (the box's faces that face the light plus the
-supporting planes through the light and the box's silhouette edges;
-:func:`shadow_volume_planes`), so a camera segment meets one iff
-Cyrus–Beck clipping against its planes leaves a non-empty interval
-``[t0, t1]`` (:func:`clip_segments`, Dr.Jit, one kernel for any number of
-volumes).  A light inside a box makes that volume everything.  Every box is
-padded by ``PAD`` (relative to the medium box's diagonal) to absorb float
-rounding of the ray tests.
+The shadow volumes are :mod:`integrators.core.shadow_volumes`'s.
 
 :func:`change_mask_reference` is the slow, obvious NumPy twin: dense points
 along each segment, each tested by a slab test of its own light ray against
@@ -92,7 +76,8 @@ def whole_frame_changes(previous: dict | None, current: dict) -> list[str]:
 def change_mask_reference(o, omega, d, boxes: Boxes, light, samples: int = 512) -> np.ndarray:
     """Dense-sampling oracle of the shadow-volume part of :func:`change_mask`:
     ``samples`` points on each segment ``o + t·ω``, ``t ∈ [0, d]`` (both ends
-    included), each tested by :func:`in_shadow_volume_reference`."""
+    included), each tested by
+    :func:`~integrators.core.shadow_volumes.in_shadow_volume_reference`."""
     o, omega, d = (np.asarray(v, dtype=np.float64) for v in (o, omega, d))
     t = np.linspace(0.0, 1.0, samples)
     out = np.zeros(len(d), dtype=bool)

@@ -1,7 +1,8 @@
 """The one render template every episcatter integrator shares (DESIGN §3).
 
 ``render()`` = check the variant (:func:`check_variant`), validate the scene
-(:class:`SceneParams`), capture the camera G-buffer, call the method's
+(:class:`~integrators.core.scene_params.SceneParams`), capture the camera G-buffer, call the
+method's
 :meth:`EpiscatterIntegrator.scattering` hook, and compose
 ``L = T_cam · L_surface + L_scat`` with a box pixel filter.  Each stage is
 timed (``dr.eval`` + ``dr.sync_thread``) into the render's
@@ -54,7 +55,7 @@ integrators do, develops every layer into the sensor's film (``film.bitmap()``,
 
 Boolean properties accept Mitsuba's ``<boolean>`` and the strings
 ``true/false``, ``yes/no``, ``on/off``, ``1/0`` (any case); anything else is
-refused (:func:`read_bool`).  ``mi.traverse(integrator)`` lists the
+refused (:func:`~integrators.core.properties.read_bool`).  ``mi.traverse(integrator)`` lists the
 properties (read-only: build a new integrator to change one).  The methods
 render whole images, so there is no per-ray ``sample()`` (Mitsuba's ``aov``
 integrator cannot wrap them: use the film's AOVs) and no derivatives
@@ -64,6 +65,7 @@ from __future__ import annotations
 
 import contextvars
 import time
+import warnings
 from collections.abc import Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -389,6 +391,11 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         token = _RECORD.set(record)
         history = dr.flag(dr.JitFlag.KernelHistory)
         if self.report_launches:
+            if history:
+                warnings.warn("report_launches takes over Dr.Jit's kernel history for the "
+                              "render: the kernels before it and in it leave the caller's "
+                              "history; read stats['launches'] instead, or turn "
+                              "report_launches off.", stacklevel=4)
             record.launches = {}
             dr.set_flag(dr.JitFlag.KernelHistory, True)
             dr.kernel_history()                 # what came before is not this render's

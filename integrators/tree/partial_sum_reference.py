@@ -88,7 +88,8 @@ def random_problem(n_slices, d, r, N, *, seed=0, blocked_fraction=0.5,
 
 
 def bench_tree(n_slices=1024, d=1024, r=1024, N=3, *, repeats=3, seed=0) -> float:
-    """Warm median wall time [s] of :func:`integrate_slices` (all steps:
+    """Warm median wall time [s] of :func:`~integrators.tree.partial_sum_tree.integrate_slices`
+    (all steps:
     counting, termination lists, sweep) on a random problem with half of the
     light rays blocked inside the view and a per-slice light factor L.
 

@@ -33,7 +33,8 @@ light-ray coordinate interval [γ, γ+1) of width Δγ) and ``r`` view rays
     light's L̃_in(α, γ) (§6) or the light-side attenuation
     e^{-σt h(α, γ)} of a directional light (DESIGN §1).
 
-Exact semantics (what :func:`integrate_slices_reference` computes)
+Exact semantics (what
+:func:`~integrators.tree.partial_sum_reference.integrate_slices_reference` computes)
 ------------------------------------------------------------------
 With visibility of leaf γ at view ray β
 
@@ -55,9 +56,10 @@ Shapes (NumPy arrays or Dr.Jit tensors; ``n`` slices, padded sizes r, d)
 -----------------------------------------------------------------------
 - ``D``: (n, r) float.
 - ``S_modes``: (n, d) blocker β (one full-weight mode per light ray), or a
-  :class:`BlockerModes` of (n, d, M) arrays ``beta`` and ``weight`` (build it
+  :class:`~integrators.epipolar.blockers.BlockerModes` of (n, d, M) arrays ``beta`` and
+  ``weight`` (build it
   from flat (slice, gamma, beta, weight) lists with
-  :meth:`BlockerModes.from_flat`).
+  :meth:`~integrators.epipolar.blockers.BlockerModes.from_flat`).
 - ``A``: (d, N), (n|1, d, N) or, coloured, (n|1, d, C, N).
 - ``B``: (r, N), (n|1, r, N) or, coloured, (n|1, r, C, N).
 - ``L``: None, (n|1, d) or (n|1, d, C).
@@ -571,7 +573,8 @@ def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
     """Scattered radiance of every view ray of every slice (Eq. 3, Fig. 6).
 
     Dr.Jit kernels, one lane per slice; semantics, shapes and result as in
-    the module docstring and :func:`integrate_slices_reference`.  With
+    the module docstring and
+    :func:`~integrators.tree.partial_sum_reference.integrate_slices_reference`.  With
     ``skip_unblocked`` (default) slices in which no blocker acts take the
     closed form instead of the tree.  Returns a detached ``TensorXf`` of
     shape (n, r) or (n, r, C)."""

@@ -1,14 +1,16 @@
 """The separated kernel of a point or spot light (Baran et al. 2010 §9;
 DESIGN §1): the geometry is in :mod:`integrators.epipolar`'s docstring.
 
-Kernel separation (:func:`~integrators.epipolar.kernel.local.separate_local_channel`, :class:`~integrators.epipolar.kernel.local.LocalSeparation`)
+Kernel separation (:func:`~integrators.epipolar.kernel.local.separate_local_channel`,
+:class:`~integrators.epipolar.kernel.local.LocalSeparation`)
 ----------------------------------------------------------------------------
 K is sampled as in the directional case (log-spaced grids, γ-quadrature
 weights, each view ray normalised), SVD'd and extended exactly (Nyström)
 in Dr.Jit.  K only matters where queries use it (x ≤ x_max, the largest x
 of a query's end point); beyond, the exponent is continued linearly in x
 (C¹), which keeps K smooth and of low rank on the whole rectangle
-(:func:`~integrators.epipolar.kernel.local.attenuation_exponent`).  Each leaf holds the mean of K over its
+(:func:`~integrators.epipolar.kernel.local.attenuation_exponent`).  Each leaf holds the mean of
+K over its
 interval, integrated in the variable E (exact for a pure exponential --
 K near the eye -- and for E bending within the interval, toward the
 anti-epipole), with the phase at the interval's e^{-E}-weighted centroid
@@ -335,7 +337,8 @@ def query_x_max(queries: EpipolarQueries) -> float:
 def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
     """(γ_lo, γ_hi, β_lo, β_hi): the rectangle on which the separated kernel
     must be accurate -- the light rays of the rows that carry light
-    (:func:`light_ray_range`; all rows if none does) and the β of their
+    (:func:`~integrators.epipolar.light_rays.local.light_ray_range`; all rows if none does) and
+    the β of their
     queries, below π − γ_lo (a view ray at β reaches γ < π − β only).  A
     spot's dark rows start at γ = 0, where K is largest: a kernel separated
     to a relative tolerance over ``[0, γ_hi]`` is all error on a narrow cone
@@ -386,14 +389,16 @@ class LocalChannel(SeparatedChannel):
 class LocalSeparation:
     """The point/spot light's stages of
     :func:`integrators.epipolar.kernel.separation.separate_kernel`: A is the mean of
-    a_i over every cell of the light rays' lattice (:class:`LocalLightRays`),
+    a_i over every cell of the light rays' lattice
+    (:class:`~integrators.epipolar.light_rays.local.LocalLightRays`),
     evaluated once per cell and gathered into the rows (leaf g of row s =
     cell m_s + g).
 
     ``band_cells`` > 0: the kernel separated is the *banded* one -- E held
     constant in the last ``band_cells`` lattice cells before each view
     ray's asymptote γ = π − β (:func:`band_x`) -- and the sweep's sum must
-    be corrected there by :func:`asymptote_band_correction`.  With the
+    be corrected there by
+    :func:`~integrators.epipolar.local_query_terms.asymptote_band_correction`.  With the
     light near the eye (L ≪ the view rays' lengths) every point farther
     than ~L/Δγ from the eye lies in those cells, so the whole rise of E
     (the camera-side transmittance) happens within ~1e-4 rad of the
@@ -409,7 +414,8 @@ class LocalSeparation:
         return math.tan(0.5 * min(self.band_cells * float(rays.delta_gamma[0]), 3.0))
 
     def light_side_path(self, queries, rays: LocalLightRays):
-        """L − r_in: the light side of each light ray (:func:`light_side_extinction`)."""
+        """L − r_in: the light side of each light ray
+        (:func:`~integrators.epipolar.light_factor.light_side_extinction`)."""
         return scalar(queries.frame.light_distance) - rays.r_in
 
     def channel(self, params, queries, rays: LocalLightRays, sigma_t: float, rank: int,

@@ -24,7 +24,7 @@ import numpy as np
 
 from ...core.opaque import Divisor, floats, opaque_unshared, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains
-from .svd import SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
+from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
 
 
@@ -186,8 +186,6 @@ def checked_tolerances(separation, params, queries, rays, channels, kernels, tol
     unshadowed sum; a channel whose ratio exceeds its tolerance is
     separated again at tolerance / (ratio · CHECK_MARGIN), at most
     CHECK_ROUNDS times (and at most MAX_RANK terms)."""
-    from .svd import MAX_RANK
-
     kernels = list(kernels)
     tols = list(tols)
     for _ in range(CHECK_ROUNDS):
@@ -336,8 +334,9 @@ class DirectionalSeparation:
             worst, scale = 0.0, 0.0
             for j in range(2):
                 w = w_host[2 * k + j]
-                worst = max(worst, float(np.max(np.where(use, host[k, j, 0] * w, 0.0))))
-                scale = max(scale, float(np.max(np.where(use, host[k, j, 1] * w, 0.0))))
+                # fmax: a NaN lane is skipped, as dr.max skips it
+                worst = max(worst, float(np.fmax.reduce(np.where(use, host[k, j, 0] * w, 0.0))))
+                scale = max(scale, float(np.fmax.reduce(np.where(use, host[k, j, 1] * w, 0.0))))
             out.append(worst / scale if scale > 0.0 else 0.0)
         return out
 

@@ -168,8 +168,10 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
     at most e^{-σt |h|} of the unattenuated single scattering.  Bounding
     the reference bounds the amplification to e^{c}; the light rays beyond
     it, worth at most e^{-c} ≈ 1e-3 of full scale, are dropped by
-    :func:`light_side_factor`, and the automatic SVD rank tightens its
-    tolerance by the row's e^{σt h_ref} (:func:`light_side_gains`)."""
+    :func:`~integrators.epipolar.light_factor.light_side_factor`, and the automatic SVD rank
+    tightens its
+    tolerance by the row's e^{σt h_ref}
+    (:func:`~integrators.epipolar.light_factor.light_side_gains`)."""
     h_ref = dr.full(mi.Float, dr.inf, n)
     dr.scatter_reduce(dr.ReduceOp.Min, h_ref, h, s)
     h_ref = dr.select(dr.isfinite(h_ref), h_ref, 0.0)

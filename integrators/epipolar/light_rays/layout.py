@@ -24,7 +24,7 @@ class LightRayLayout:
     :meth:`row_counts`, and what a stage asks of any layout instead of
     testing its type: :attr:`equal_widths`, :meth:`query_depth`,
     :meth:`texel_weights`, :meth:`own_kernel` and :meth:`read_blockers`.
-    Layouts: :class:`LightRays` (directional),
+    Layouts: :class:`~integrators.epipolar.light_rays.directional.LightRays` (directional),
     :class:`~integrators.epipolar.light_rays.local.LocalLightRays` (point/spot),
     :class:`~integrators.fourier.projective_rays.ProjectiveLightRays` (Klehm §4.2)."""
 

@@ -27,7 +27,7 @@ CONE_MARGIN = 1e-4
 
 @dataclass(frozen=True, eq=False)
 class LocalLightRays(EqualLightRays):
-    """Light rays on one lattice of angles at the light (module doc): every
+    """Light rays on one lattice of angles at the light (:mod:`integrators.epipolar`, "Light rays"): every
     row has the same ``Δγ``; row s starts at ``γ_lo = m_s·Δγ`` and has
     ``d_count[s] ≤ d`` light rays (leaf g of row s is lattice cell
     ``m_s + g``).  ``r_in`` (n·d,): distance from the light at which each
@@ -221,7 +221,7 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     get one light ray.
     Rows with a narrow range thus get fewer light rays, at the common
     spacing, and the kernel is evaluated once per lattice cell
-    (:class:`LocalSeparation`)."""
+    (:class:`~integrators.epipolar.kernel.local.LocalSeparation`)."""
     frame = queries.frame
     lo, hi, lit = light_ray_range(params, queries)
     auto = not d
