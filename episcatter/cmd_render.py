@@ -75,16 +75,18 @@ def check_arguments(args) -> None:
         raise FileNotFoundError(f"reference '{args.reference}' does not exist.")
 
 
-def render_layers(integ, scene, seed, spp) -> tuple[dict, dict]:
+def render_layers(integ, scene, seed, spp) -> tuple[dict, dict, dict]:
     """Render once: (every layer as (H, W, C) NumPy arrays, kernels finished;
-    the render's stage timings, {} for plain Mitsuba integrators)."""
+    the render's stage timings and its stats, {} for plain Mitsuba
+    integrators)."""
     if hasattr(integ, "render_layers"):
         result = integ.render_layers(scene, 0, seed, spp)
         dr.eval(*result.values())
         dr.sync_thread()
-        return {k: np.array(v) for k, v in result.items()}, dict(result.timings)
+        return ({k: np.array(v) for k, v in result.items()}, dict(result.timings),
+                dict(result.stats))
     from .reference import render_rgb
-    return {"full": render_rgb(scene, integ, spp=spp, seed=seed)}, {}
+    return {"full": render_rgb(scene, integ, spp=spp, seed=seed)}, {}, {}
 
 
 def timed_runs(integ, scene, seed, spp, repeats) -> dict:
@@ -94,17 +96,37 @@ def timed_runs(integ, scene, seed, spp, repeats) -> dict:
     runs = []
     for _ in range(1 + int(repeats)):
         t0 = time.perf_counter()
-        layers, timings = render_layers(integ, scene, seed, spp)
+        layers, timings, stats = render_layers(integ, scene, seed, spp)
         seconds = time.perf_counter() - t0
         runs.append((seconds, timings))
     warm = runs[1:]
     out = {"first_s": runs[0][0], "warm_s": [s for s, _ in warm], "layers": layers,
-           "stages": None}
+           "stages": None, "stats": stats}
     if warm:
         out["median_s"] = statistics.median(out["warm_s"])
         seconds, stages = min(warm, key=lambda r: abs(r[0] - out["median_s"]))
         out["stages"] = stage_breakdown(stages, seconds) if stages else None
     return out
+
+
+def print_auto_choice(stats: dict) -> None:
+    """What ``quality="auto"`` chose: the settings, the relMSE it expects
+    (measured by its probe or predicted by its model) against the budget,
+    and the probe's cost."""
+    if "auto_settings" not in stats:
+        return
+    chosen = ", ".join(f"{k}={v}" for k, v in stats["auto_settings"].items()) or "the defaults"
+    print(f"  quality=auto chose {chosen} for error_budget {stats['error_budget']:g}")
+    expected = stats.get("auto_predicted_relmse")
+    if expected is None:
+        print("    expected relMSE: unknown (the probe saw no error to model)")
+    else:
+        how = ("measured by the probe" if stats.get("auto_predicted_from") == "measured"
+               else "predicted by the rule's error model")
+        print(f"    expected relMSE {expected:.2e} ({how}, pixel centres)")
+    print(f"    probe: {stats.get('auto_probe_s', 0.0):.3f} s on "
+          f"{stats.get('auto_probe_pixels', 0)} pixels"
+          + (", its render reused" if stats.get("auto_reused") else ""))
 
 
 def print_times(t: dict) -> None:
@@ -188,6 +210,7 @@ def run(args) -> int:
     h, w = main.shape[:2]
     print(f"rendered {args.scene} ({w}x{h}, {spp} spp, {convention}) with {kind}")
     print_times(t)
+    print_auto_choice(t.get("stats", {}))
     print(f"  wrote {exr} and {png}")
     print_comparison(main, args, defines, convention)
     return 0

@@ -131,3 +131,17 @@ def test_epipolar_png_draws_slices_epipole_and_ring(tmp_path, capsys):
     assert png.stat().st_size > 5000
     code, _, err = run_cli(["epipolar", SCENE, "--png", str(tmp_path / "x.exr")], capsys)
     assert code == 2 and "must end in .png" in err
+
+
+def test_render_with_an_error_budget_says_what_it_chose(capsys, tmp_path):
+    """``quality=auto``: the settings the rule chose, the relMSE it expects
+    (and whether the probe measured it or its model predicts it) and the
+    probe's cost are printed, not only recorded."""
+    code, out, _ = run_cli(["render", SCENE, *TINY, "-i", "epipolar_tree", "-p", "quality=auto",
+                            "-p", "error_budget=1e-3", "--repeats", "0",
+                            "-o", str(tmp_path / "auto.exr")], capsys)
+    assert code == 0
+    assert re.search(r"quality=auto chose slice_spacing=\S+, light_rays=\d+ for error_budget "
+                     r"0\.001", out), out
+    assert re.search(r"expected relMSE \d\.\d\de-\d\d \((measured by the probe|predicted)", out)
+    assert re.search(r"probe: \d+\.\d+ s on \d+ pixels", out)

@@ -112,6 +112,9 @@ class FixedProbe:
         self.asked.append(settings)
         return self.errors.pop(0)
 
+    def predict(self, relmse, how):
+        self.predicted, self.predicted_from = relmse, how
+
 
 def test_tree_model_recovers_both_terms_from_any_second_setting():
     fit = qa.FIT["epipolar_tree"]
@@ -289,3 +292,26 @@ def test_every_plugin_registers_its_own_rule():
         source = inspect.getsource(module)
         assert not any(f'"{m}"' in source for m in ("epipolar_tree", "fourier_filter",
                                                       "minmax_epipolar")), module.__name__
+
+
+@pytest.mark.parametrize("case", [
+    ("tree", [1e-3], 1e-2, "measured", 1e-3),        # the first setting meets it
+    ("tree", [1e-3, 2e-5], 1e-4, "measured", 2e-5),  # the predicted second meets it
+    ("filter", [4.61e-5, 4.17e-5], 1e-5, "model", None),
+    ("minmax", [1e-3, 2.5e-4], 1e-5, "model", None),
+    ("raymarch", [4e-4, 1e-4], 1e-5, "model", None),
+])
+def test_every_rule_states_the_error_it_expects(case):
+    """The rule records the relMSE it expects of its choice: the probe's
+    own measurement when it returns a probed setting, else its model's
+    prediction, which meets the target when a candidate does."""
+    method, errors, budget, how, value = case
+    rule = {"tree": tq.choose_tree, "filter": fq.choose_filter, "minmax": mq.choose_minmax,
+            "raymarch": rq.choose_raymarch}[method]
+    probe = FixedProbe(errors)
+    rule(probe, budget)
+    assert probe.predicted_from == how
+    if value is not None:
+        assert probe.predicted == value
+    else:
+        assert probe.predicted > 0 and math.isfinite(probe.predicted)

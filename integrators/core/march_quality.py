@@ -25,21 +25,37 @@ def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     step counts (k clamped; the fitted k where the probe sees no error)."""
     fit = fit or FITTED
     e1, e2 = (probe.error(p, partial=True) for p in march_probe(probe.diagonal))
-    return {"visibility": "exact", "steps": march_steps(e1, e2, budget, fit)}
+    n = march_steps(e1, e2, budget, fit)
+    probe.predict(march_error(e1, e2, n, fit), "model")
+    return {"visibility": "exact", "steps": n}
+
+
+def march_exponent(e1: float, e2: float, fit=None) -> float:
+    """k of relMSE = C n^k through the errors at :data:`MARCH_PROBE`
+    (clamped to the fit's range; the fitted k where e1 shows nothing)."""
+    fit = fit or FITTED
+    n1, n2 = MARCH_PROBE
+    k = fit["k"]
+    if e1 > 0 and math.isfinite(e1):
+        k = min(max(math.log(e2 / e1) / math.log(n2 / n1), fit["k_range"][0]), fit["k_range"][1])
+    return k
 
 
 def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:
     """Steps n with C n^k = SAFETY·budget, C and k from the errors ``e1``,
     ``e2`` at :data:`MARCH_PROBE` (module doc)."""
-    fit = fit or FITTED
-    n1, n2 = MARCH_PROBE
+    n2 = MARCH_PROBE[1]
     if not (e2 > 0 and math.isfinite(e2)):
         return 16
-    k = fit["k"]
-    if e1 > 0 and math.isfinite(e1):
-        k = min(max(math.log(e2 / e1) / math.log(n2 / n1), fit["k_range"][0]), fit["k_range"][1])
-    n = n2 * (target_of(budget) / e2) ** (1.0 / k)
+    n = n2 * (target_of(budget) / e2) ** (1.0 / march_exponent(e1, e2, fit))
     return int(min(max(math.ceil(n), 16), 16384))
+
+
+def march_error(e1: float, e2: float, n: int, fit=None) -> float | None:
+    """The model's relMSE at ``n`` steps (None where the probe saw no error)."""
+    if not (e2 > 0 and math.isfinite(e2)):
+        return None
+    return e2 * (n / MARCH_PROBE[1]) ** march_exponent(e1, e2, fit)
 
 
 def march_probe(diagonal: float) -> list[dict]:

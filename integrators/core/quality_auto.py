@@ -180,6 +180,15 @@ class Probe:
         self.errors = []
         #: settings key -> RenderResult of each full-image probe render
         self.kept = {}
+        #: the relMSE the rule expects of its choice, and whether the probe
+        #: measured it (``"measured"``) or its error model predicts it
+        #: (``"model"``); None where the model has nothing to go on
+        self.predicted, self.predicted_from = None, None
+
+    def predict(self, relmse, how: str) -> None:
+        """Record the error the rule expects of the setting it returns."""
+        ok = relmse is not None and math.isfinite(relmse)
+        self.predicted, self.predicted_from = (float(relmse), how) if ok else (None, None)
 
     def render(self, integrator, partial=False):
         """RenderResult of ``integrator`` at one sample per pixel centre (a
@@ -263,7 +272,9 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
     probe = Probe(scene, sensor, method, base or {}, seed=seed)
     settings = RULES[method].choose(probe, float(budget), FIT[method])
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
-                      "auto_probe_pixels": int(len(probe.pixels))}, probe
+                      "auto_probe_pixels": int(len(probe.pixels)),
+                      "auto_predicted_relmse": probe.predicted,
+                      "auto_predicted_from": probe.predicted_from}, probe
 
 
 def kept_render(probe: Probe, inner, scene, sensor, spp, settings: dict, partial_args: dict):

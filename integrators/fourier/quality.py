@@ -40,16 +40,21 @@ def filter_settings(e1: float, e2: float, budget: float, fit=None, m2: int | Non
     with F + C M^k within the target; where the floor F alone misses it,
     ``weights="exact"`` and the smallest M with C M^k within it (the most
     coefficients when none is)."""
-    fit = fit or FITTED
-    k = fit["k"]
     F, C = filter_model(e1, e2, fit, m2)
     for M in FILTER_COEFFICIENTS:
-        if F + C * M ** k <= target_of(budget):
+        if filter_error(F, C, M, False, fit) <= target_of(budget):
             return {"coefficients": M}
     for M in FILTER_COEFFICIENTS:
-        if C * M ** k <= target_of(budget):
+        if filter_error(F, C, M, True, fit) <= target_of(budget):
             return {"coefficients": M, "weights": "exact"}
     return {"coefficients": FILTER_COEFFICIENTS[-1], "weights": "exact"}
+
+
+def filter_error(F: float, C: float, M: int, exact_weights: bool, fit=None) -> float:
+    """The model's relMSE at M coefficients: F + C M^k, or C M^k with
+    ``weights="exact"`` (which removes the floor F)."""
+    fit = fit or FITTED
+    return (0.0 if exact_weights else F) + C * M ** fit["k"]
 
 
 def predicted_coefficients(e1: float, budget: float, fit=None) -> int:
@@ -73,12 +78,18 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     first = filter_probe(probe.diagonal)[0]
     e1 = probe.error(first)
     if e1 <= target_of(budget):
+        probe.predict(e1, "measured")
         return first
     m2 = predicted_coefficients(e1, budget, fit)
     e2 = probe.error({"coefficients": m2})
     if e2 <= target_of(budget):
+        probe.predict(e2, "measured")
         return {"coefficients": m2}
-    return filter_settings(e1, e2, budget, fit, m2)
+    settings = filter_settings(e1, e2, budget, fit, m2)
+    F, C = filter_model(e1, e2, fit, m2)
+    probe.predict(filter_error(F, C, settings["coefficients"], "weights" in settings, fit),
+                  "model")
+    return settings
 
 
 def filter_probe(diagonal: float) -> list[dict]:

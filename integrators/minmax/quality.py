@@ -27,21 +27,38 @@ def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
     """Initial step s with C s^k within the target, C and k through the
     errors ``e1``, ``e2`` at :data:`MINMAX_PROBE` (k clamped; the largest
     candidate predicted to meet it, else 1)."""
+    s2 = MINMAX_PROBE[1]
+    if not (e2 > 0 and math.isfinite(e2)):
+        return s2 if e2 == 0 else 1
+    ok = [s for s in MINMAX_STEPS if minmax_error(e1, e2, s, fit) <= target_of(budget)]
+    return max(ok) if ok else MINMAX_STEPS[0]
+
+
+def minmax_error(e1: float, e2: float, s: int, fit=None) -> float | None:
+    """The model's relMSE C s^k at initial step ``s`` (k through the errors
+    at :data:`MINMAX_PROBE`, clamped; None where the probe saw no error)."""
     fit = fit or FITTED
     s1, s2 = MINMAX_PROBE
     if not (e2 > 0 and math.isfinite(e2)):
-        return s2 if e2 == 0 else 1
+        return None
     k = fit["k"]
     if e1 > 0 and math.isfinite(e1):
         k = min(max(math.log(e1 / e2) / math.log(s1 / s2), fit["k_range"][0]), fit["k_range"][1])
-    ok = [s for s in MINMAX_STEPS if e2 * (s / s2) ** k <= target_of(budget)]
-    return max(ok) if ok else MINMAX_STEPS[0]
+    return e2 * (s / s2) ** k
 
 
 def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
     """Initial step of the min/max method (module doc)."""
     first, e1, e2 = probe_errors(probe, minmax_probe, budget)
-    return first if e2 is None else {"initial_step": minmax_step(e1, e2, budget, fit)}
+    if e2 is None:
+        probe.predict(e1, "measured")
+        return first
+    s = minmax_step(e1, e2, budget, fit)
+    if s == MINMAX_PROBE[1]:
+        probe.predict(e2, "measured")
+    else:
+        probe.predict(minmax_error(e1, e2, s, fit) if e2 > 0 else e2, "model")
+    return {"initial_step": s}
 
 
 def minmax_probe(diagonal: float) -> list[dict]:

@@ -63,13 +63,21 @@ def tree_choice_of(A: float, B: float, budget: float, fit=None):
     best, most = None, None
     for s in TREE_SPACINGS:
         for r in TREE_DENSITIES:
-            err = A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
+            err = tree_error(A, B, s, r, fit)
             t = al + be / s + ga * r / s
             if err <= target_of(budget) and (best is None or t < best[0]):
                 best = (t, s, r)
             if most is None or (err, t) < most[0]:
                 most = ((err, t), s, r)
     return (best[1], best[2]) if best else (most[1], most[2])
+
+
+def tree_error(A: float, B: float, s: float, r: float, fit=None) -> float:
+    """The model's relMSE A (s/s0)^a + B (rho/rho0)^-b at spacing ``s`` and
+    light-ray density ``r``."""
+    fit = fit or FITTED
+    s0, r0, _ = TREE_PROBE
+    return A * (s / s0) ** fit["a"] + B * (r / r0) ** -fit["b"]
 
 
 def light_rays_of(density: float, diagonal: float) -> int:
@@ -89,6 +97,7 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     first = tree_probe(probe.diagonal)[0]
     e1 = probe.error(first)
     if e1 <= target_of(budget):
+        probe.predict(e1, "measured")
         return first
     s2, r2 = tree_choice_of(e1, e1, budget, fit)
     second = tree_settings(s2, r2, probe.diagonal)
@@ -97,8 +106,12 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
         s2, r2 = TREE_PROBE[0], TREE_PROBE[2]
     e2 = probe.error(second)
     if e2 <= target_of(budget):
+        probe.predict(e2, "measured")
         return second
-    return tree_settings(*tree_choice(e1, e2, budget, fit, (s2, r2)), probe.diagonal)
+    A, B = tree_model(e1, e2, fit, (s2, r2))
+    s, r = tree_choice_of(A, B, budget, fit)
+    probe.predict(tree_error(A, B, s, r, fit), "model")
+    return tree_settings(s, r, probe.diagonal)
 
 
 def tree_probe(diagonal: float) -> list[dict]:
