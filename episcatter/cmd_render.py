@@ -124,6 +124,8 @@ def print_auto_choice(stats: dict) -> None:
         how = ("measured by the probe" if stats.get("auto_predicted_from") == "measured"
                else "predicted by the rule's error model")
         print(f"    expected relMSE {expected:.2e} ({how}, pixel centres)")
+    if stats.get("auto_over_budget"):
+        print("    warning: no setting the rule considers is expected to reach the budget")
     print(f"    probe: {stats.get('auto_probe_s', 0.0):.3f} s on "
           f"{stats.get('auto_probe_pixels', 0)} pixels"
           + (", its render reused" if stats.get("auto_reused") else ""))

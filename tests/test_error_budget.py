@@ -115,6 +115,9 @@ class FixedProbe:
     def predict(self, relmse, how):
         self.predicted, self.predicted_from = relmse, how
 
+    def unreachable(self, budget, relmse):
+        self.over_budget = (budget, relmse)
+
 
 def test_tree_model_recovers_both_terms_from_any_second_setting():
     fit = qa.FIT["epipolar_tree"]
@@ -141,8 +144,10 @@ def test_tree_renders_its_prediction_second_and_keeps_it_when_it_meets_the_targe
     probe = FixedProbe([1e-3, 4e-5])
     got = tq.choose_tree(probe, 1e-5)
     assert probe.asked[1] == tq.tree_settings(s, r, probe.diagonal)
-    assert got == tq.tree_settings(*tq.tree_choice(1e-3, 4e-5, 1e-5, second=(s, r)),
-                                   probe.diagonal)
+    A, B = tq.tree_model(1e-3, 4e-5, second=(s, r))
+    want = tq.tree_settings(*tq.tree_choice_of(A, B, 1e-5, safe=True), probe.diagonal)
+    want["light_rays"] = max(want["light_rays"], 256)
+    assert got == want
 
 
 def test_filter_renders_its_prediction_second():
@@ -315,3 +320,39 @@ def test_every_rule_states_the_error_it_expects(case):
         assert probe.predicted == value
     else:
         assert probe.predicted > 0 and math.isfinite(probe.predicted)
+
+
+def test_a_model_predicted_setting_is_never_coarser_than_the_defaults():
+    """Where the probe did not measure the setting it returns, the rule's
+    model is a guess: the tree's spacing and light rays and the filter's
+    coefficients stay at least as fine as the defaults (a textured spot
+    through thin bars: the model chose slice_spacing=4, 13x over a 1e-5
+    budget, where the defaults met it)."""
+    # errors that the unconstrained model reads as "the spacing costs nothing"
+    e1, e2 = 1e-4, 2.2e-5
+    second = tq.tree_choice_of(e1, e1, 1e-5)
+    assert tq.tree_choice_of(*tq.tree_model(e1, e2, second=second), 1e-5)[0] == 4.0  # unguarded
+    probe = FixedProbe([e1, e2], diagonal=400.0)
+    got = tq.choose_tree(probe, 1e-5)
+    assert probe.predicted_from == "model"
+    assert got["slice_spacing"] <= tq.DEFAULT_SPACING
+    assert got["light_rays"] >= max(400, 256)
+    # the filter: never fewer coefficients than the defaults' 32 on a guess
+    m2 = fq.predicted_coefficients(3e-4, 1.2e-4)
+    assert fq.filter_settings(3e-4, 2.9e-4, 1.2e-4, m2=m2)["coefficients"] == 8  # unguarded
+    probe = FixedProbe([3e-4, 2.9e-4])
+    got = fq.choose_filter(probe, 1.2e-4)
+    assert probe.predicted_from == "model" and got["coefficients"] >= 32
+
+
+def test_a_budget_no_setting_reaches_is_said():
+    """The finest setting is predicted to miss: a warning naming the way out,
+    and the stats flag it (the error is not returned over budget silently)."""
+    with pytest.warns(UserWarning, match="not expected to reach error_budget"):
+        probe = qa.Probe.__new__(qa.Probe)
+        probe.method, probe.over_budget = "epipolar_tree", False
+        probe.unreachable(1e-7, 3e-5)
+    assert probe.over_budget
+    probe = FixedProbe([1e-3, 9e-4])
+    tq.choose_tree(probe, 1e-9)
+    assert probe.over_budget[0] == 1e-9

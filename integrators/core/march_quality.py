@@ -26,7 +26,10 @@ def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     fit = fit or FITTED
     e1, e2 = (probe.error(p, partial=True) for p in march_probe(probe.diagonal))
     n = march_steps(e1, e2, budget, fit)
-    probe.predict(march_error(e1, e2, n, fit), "model")
+    predicted = march_error(e1, e2, n, fit)
+    probe.predict(predicted, "model")
+    if predicted is not None and predicted > target_of(budget):
+        probe.unreachable(budget, predicted)
     return {"visibility": "exact", "steps": n}
 
 

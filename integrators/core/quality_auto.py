@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, replace
 from typing import Callable
 
@@ -184,11 +185,25 @@ class Probe:
         #: measured it (``"measured"``) or its error model predicts it
         #: (``"model"``); None where the model has nothing to go on
         self.predicted, self.predicted_from = None, None
+        #: whether the rule expects to miss the budget at every setting
+        self.over_budget = False
 
     def predict(self, relmse, how: str) -> None:
         """Record the error the rule expects of the setting it returns."""
         ok = relmse is not None and math.isfinite(relmse)
         self.predicted, self.predicted_from = (float(relmse), how) if ok else (None, None)
+
+    def unreachable(self, budget: float, relmse) -> None:
+        """The rule's finest setting is predicted to miss ``budget``: say so
+        (a ``UserWarning`` naming what converges) instead of returning an
+        image over budget silently; the render's stats record it."""
+        self.over_budget = True
+        warnings.warn(
+            f"quality='auto': {self.method} is not expected to reach error_budget {budget:g} "
+            f"at any setting its rule considers (predicted relMSE {relmse:.2e} at its "
+            "finest): the render will be over budget.  raymarch with visibility='exact' "
+            "converges to the reference with enough steps; or raise the budget.",
+            UserWarning, stacklevel=2)
 
     def render(self, integrator, partial=False):
         """RenderResult of ``integrator`` at one sample per pixel centre (a
@@ -274,7 +289,8 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
                       "auto_probe_pixels": int(len(probe.pixels)),
                       "auto_predicted_relmse": probe.predicted,
-                      "auto_predicted_from": probe.predicted_from}, probe
+                      "auto_predicted_from": probe.predicted_from,
+                      "auto_over_budget": probe.over_budget}, probe
 
 
 def kept_render(probe: Probe, inner, scene, sensor, spp, settings: dict, partial_args: dict):

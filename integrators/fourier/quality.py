@@ -13,6 +13,7 @@ the plugin registers :data:`FILTER_RULE`.
 from __future__ import annotations
 
 from ..core.quality_auto import Probe, QualityRule, target_of
+from .basis import DEFAULT_M
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -35,16 +36,23 @@ def filter_model(e1: float, e2: float, fit=None, m2: int | None = None) -> tuple
     return max(e2 - C * m2 ** k, 0.0), C
 
 
-def filter_settings(e1: float, e2: float, budget: float, fit=None, m2: int | None = None) -> dict:
+def filter_settings(e1: float, e2: float, budget: float, fit=None, m2: int | None = None,
+                    safe: bool = False) -> dict:
     """Coefficients M (and weights) of the filter: the smallest candidate
     with F + C M^k within the target; where the floor F alone misses it,
     ``weights="exact"`` and the smallest M with C M^k within it (the most
-    coefficients when none is)."""
+    coefficients when none is); ``safe``: never fewer than the defaults'
+    :data:`~integrators.fourier.basis.DEFAULT_M`."""
     F, C = filter_model(e1, e2, fit, m2)
+    floor = DEFAULT_M if safe else 0
     for M in FILTER_COEFFICIENTS:
+        if M < floor:
+            continue
         if filter_error(F, C, M, False, fit) <= target_of(budget):
             return {"coefficients": M}
     for M in FILTER_COEFFICIENTS:
+        if M < floor:
+            continue
         if filter_error(F, C, M, True, fit) <= target_of(budget):
             return {"coefficients": M, "weights": "exact"}
     return {"coefficients": FILTER_COEFFICIENTS[-1], "weights": "exact"}
@@ -85,10 +93,12 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     if e2 <= target_of(budget):
         probe.predict(e2, "measured")
         return {"coefficients": m2}
-    settings = filter_settings(e1, e2, budget, fit, m2)
+    settings = filter_settings(e1, e2, budget, fit, m2, safe=True)   # a guess: not below 32
     F, C = filter_model(e1, e2, fit, m2)
-    probe.predict(filter_error(F, C, settings["coefficients"], "weights" in settings, fit),
-                  "model")
+    predicted = filter_error(F, C, settings["coefficients"], "weights" in settings, fit)
+    probe.predict(predicted, "model")
+    if predicted > target_of(budget):
+        probe.unreachable(budget, predicted)
     return settings
 
 

@@ -57,7 +57,10 @@ def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
     if s == MINMAX_PROBE[1]:
         probe.predict(e2, "measured")
     else:
-        probe.predict(minmax_error(e1, e2, s, fit) if e2 > 0 else e2, "model")
+        predicted = minmax_error(e1, e2, s, fit) if e2 > 0 else e2
+        probe.predict(predicted, "model")
+        if predicted is not None and predicted > target_of(budget):
+            probe.unreachable(budget, predicted)
     return {"initial_step": s}
 
 

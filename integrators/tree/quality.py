@@ -13,6 +13,7 @@ the plugin registers :data:`TREE_RULE`.
 from __future__ import annotations
 
 from ..core.quality_auto import Probe, QualityRule, target_of
+from ..epipolar.light_rays.directional import MIN_AUTO_LIGHT_RAYS
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -21,6 +22,9 @@ FITTED = {"a": 1.9, "b": 1.1, "time": (0.543, 0.354, 0.102)}
 #: candidate slice spacings [px] and light-ray densities of the tree
 TREE_SPACINGS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 TREE_DENSITIES = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0)
+#: the defaults' slice spacing [px] and light-ray density: a setting the
+#: rule's model predicts (the probe did not measure it) is never coarser
+DEFAULT_SPACING, DEFAULT_DENSITY = 1.0, 1.0
 #: the tree's probe: slice spacing s0 and densities rho0, 4 rho0
 TREE_PROBE = (2.0, 0.5, 2.0)
 
@@ -55,14 +59,17 @@ def tree_choice(e1: float, e2: float, budget: float, fit=None, second=None):
     return tree_choice_of(*tree_model(e1, e2, fit, second), budget, fit)
 
 
-def tree_choice_of(A: float, B: float, budget: float, fit=None):
-    """:func:`tree_choice` for the model's terms ``A`` and ``B``."""
+def tree_choice_of(A: float, B: float, budget: float, fit=None, safe: bool = False):
+    """:func:`tree_choice` for the model's terms ``A`` and ``B``; ``safe``:
+    among the settings at least as fine as the defaults only."""
     fit = fit or FITTED
     s0, r0, _ = TREE_PROBE
     al, be, ga = fit["time"]
     best, most = None, None
     for s in TREE_SPACINGS:
         for r in TREE_DENSITIES:
+            if safe and (s > DEFAULT_SPACING or r < DEFAULT_DENSITY):
+                continue
             err = tree_error(A, B, s, r, fit)
             t = al + be / s + ga * r / s
             if err <= target_of(budget) and (best is None or t < best[0]):
@@ -109,9 +116,14 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
         probe.predict(e2, "measured")
         return second
     A, B = tree_model(e1, e2, fit, (s2, r2))
-    s, r = tree_choice_of(A, B, budget, fit)
-    probe.predict(tree_error(A, B, s, r, fit), "model")
-    return tree_settings(s, r, probe.diagonal)
+    s, r = tree_choice_of(A, B, budget, fit, safe=True)   # a guess: never coarser than the defaults
+    predicted = tree_error(A, B, s, r, fit)
+    probe.predict(predicted, "model")
+    if predicted > target_of(budget):
+        probe.unreachable(budget, predicted)
+    settings = tree_settings(s, r, probe.diagonal)
+    settings["light_rays"] = max(settings["light_rays"], MIN_AUTO_LIGHT_RAYS)
+    return settings
 
 
 def tree_probe(diagonal: float) -> list[dict]:
