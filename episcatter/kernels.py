@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 
+from rectify._dr import drain_jit_kernels
+
 _HEX = re.compile(r"0x[0-9a-fA-F]{16}")
 _INT = re.compile(r"(?<=[ ,<(\[])(-?\d+)(?=[ ,>)\]\n])")
 _NAME = re.compile(r"(drjit|optix)_[0-9a-f]{32}")
@@ -74,11 +76,9 @@ def kernel_log():
         yield log
     finally:
         dr.sync_thread()
-        hist = dr.kernel_history()
+        hist = drain_jit_kernels()
         dr.set_flag(dr.JitFlag.KernelHistory, was)
         for k in hist:
-            if k.get("type") != dr.KernelType.JIT:
-                continue
             k = dict(k)
             k["ir"] = _ir_text(k)
             log.entries.append(k)
@@ -150,7 +150,7 @@ def launch_sites(roots=("integrators", "rectify")):
     last = ["<before the first traced line>"]
 
     def charge():
-        n = sum(1 for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT)
+        n = len(drain_jit_kernels())
         if n:
             sites[last[0]] += n
 

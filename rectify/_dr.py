@@ -151,3 +151,10 @@ def host_array(value) -> np.ndarray:
     if dr.is_array_v(value) and dr.depth_v(value) > 1:
         return np.concatenate([host_array(value[i]) for i in range(len(value))])
     return np.asarray(value, dtype=np.float64).reshape(-1)
+
+
+def drain_jit_kernels() -> list:
+    """The JIT kernels in Dr.Jit's kernel history since it was last read
+    (reading empties it; the other entries -- reductions, prefix sums,
+    memory copies -- are dropped)."""
+    return [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .quality_auto import Probe, QualityRule, target_of
+from .quality_auto import Probe, QualityRule, clamped_exponent, target_of
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -36,12 +36,8 @@ def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
 def march_exponent(e1: float, e2: float, fit=None) -> float:
     """k of relMSE = C n^k through the errors at :data:`MARCH_PROBE`
     (clamped to the fit's range; the fitted k where e1 shows nothing)."""
-    fit = fit or FITTED
     n1, n2 = MARCH_PROBE
-    k = fit["k"]
-    if e1 > 0 and math.isfinite(e1):
-        k = min(max(math.log(e2 / e1) / math.log(n2 / n1), fit["k_range"][0]), fit["k_range"][1])
-    return k
+    return clamped_exponent(e2, e1, n2, n1, fit or FITTED)
 
 
 def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:

@@ -240,6 +240,16 @@ class Probe:
 # Rules: probe -> settings
 # --------------------------------------------------------------------------
 
+def clamped_exponent(e_a: float, e_b: float, x_a: float, x_b: float, fit: dict) -> float:
+    """k of relMSE = C x^k through the probe's errors ``e_a`` at ``x_a`` and
+    ``e_b`` at ``x_b``, clamped to ``fit["k_range"]``; ``fit["k"]`` where
+    either shows nothing (0 or not finite)."""
+    if not all(e > 0 and math.isfinite(e) for e in (e_a, e_b)):
+        return fit["k"]
+    k = math.log(e_a / e_b) / math.log(x_a / x_b)
+    return min(max(k, fit["k_range"][0]), fit["k_range"][1])
+
+
 def target_of(budget: float) -> float:
     return SAFETY * budget
 

@@ -235,8 +235,7 @@ class Coverage:
 
     def sum(self, w) -> mi.Float:
         """Σ_g w_g clip(D − g, 0, 1) per query, ``w`` an (n·d) texel array."""
-        P = dr.block_prefix_sum(w, self.d, exclusive=True)
-        return dr.gather(mi.Float, P, self.texel) + self.frac * dr.gather(mi.Float, w, self.texel)
+        return self.stacked_sums(w, 1)[0]
 
     def stacked_sums(self, stack, count: int) -> tuple:
         """:meth:`sum` of each of the ``count`` (n·d) texel arrays laid one
@@ -247,7 +246,7 @@ class Coverage:
         P = dr.block_prefix_sum(stack, self.d, exclusive=True)
         out = []
         for k in range(count):
-            at = self.texel + opaque_unshared(mi.UInt32, k * size)
+            at = self.texel if k == 0 else self.texel + opaque_unshared(mi.UInt32, k * size)
             out.append(dr.gather(mi.Float, P, at) + self.frac * dr.gather(mi.Float, stack, at))
         return tuple(out)
 

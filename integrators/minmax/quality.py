@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from ..core.quality_auto import Probe, QualityRule, probe_errors, target_of
+from ..core.quality_auto import Probe, QualityRule, clamped_exponent, probe_errors, target_of
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -41,10 +41,7 @@ def minmax_error(e1: float, e2: float, s: int, fit=None) -> float | None:
     s1, s2 = MINMAX_PROBE
     if not (e2 > 0 and math.isfinite(e2)):
         return None
-    k = fit["k"]
-    if e1 > 0 and math.isfinite(e1):
-        k = min(max(math.log(e1 / e2) / math.log(s1 / s2), fit["k_range"][0]), fit["k_range"][1])
-    return e2 * (s / s2) ** k
+    return e2 * (s / s2) ** clamped_exponent(e1, e2, s1, s2, fit)
 
 
 def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:

@@ -73,6 +73,8 @@ from dataclasses import dataclass, field
 import drjit as dr
 import mitsuba as mi
 
+from rectify._dr import drain_jit_kernels
+
 from ..core import quality_auto
 from ..core.capture import CameraCapture, capture_camera
 from ..core.film import LAYERS, OUTPUTS, compose_layers, develop_into_film, layer_channels
@@ -122,7 +124,7 @@ class RenderRecord:
 
 def count_launches(record: RenderRecord, stage: str) -> None:
     """Charge the JIT kernels launched since the last count to ``stage``."""
-    n = sum(1 for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT)
+    n = len(drain_jit_kernels())
     if n:
         record.launches[stage] = record.launches.get(stage, 0) + n
 
