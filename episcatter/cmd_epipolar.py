@@ -1,4 +1,4 @@
-"""``episcatter epipolar SCENE [-D name=value]... [--ring DEG] [--json] [--png OUT.png [--image EXR]]``
+"""``episcatter epipolar SCENE [-D name=value]... [--light N] [--ring DEG] [--json] [--png OUT.png [--image EXR]]``
 
 Epipolar geometry of a scene's camera and light (rectify issue, point 8): the
 epipole in pixel coordinates and its case (on-screen / off-screen / at
@@ -21,6 +21,9 @@ def add_arguments(p):
     p.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
                    help="XML default, e.g. -D res_x=1280 (repeatable)")
     p.add_argument("--ring", type=float, default=2.0, help="epipole ring radius in degrees")
+    p.add_argument("--light", type=int, default=0, metavar="N",
+                   help="which of the scene's lights (0: the first; each light has its own "
+                        "epipolar geometry)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--png", metavar="OUT.png",
                    help="draw the slices, the epipole and the ring over the image into a PNG")
@@ -29,21 +32,26 @@ def add_arguments(p):
     p.add_argument("--lines", type=int, default=48, help="slice lines drawn at most (--png)")
 
 
-def light_geometry(params):
-    """(kind, direction or position) of a scene's light, as rectify takes it."""
-    light = params.light
+def light_geometry(params, index: int = 0):
+    """(kind, direction or position) of the scene's light ``index``, as
+    rectify takes it."""
+    if not 0 <= index < len(params.lights):
+        raise ValueError(f"--light {index}: the scene has {len(params.lights)} light(s); "
+                         f"give 0..{len(params.lights) - 1}.")
+    light = params.lights[index]
     return (("directional", light.direction) if light.kind == "directional"
             else (light.kind, light.position))
 
 
-def scene_geometry(scene_path, defines=None, ring_deg=2.0) -> dict:
-    """rectify.describe() of a scene file's camera and light."""
+def scene_geometry(scene_path, defines=None, ring_deg=2.0, light=0) -> dict:
+    """rectify.describe() of a scene file's camera and its light ``light``."""
     from integrators.core.scene_params import SceneParams
     from rectify.describe import describe
 
     params = SceneParams.from_scene(load_scene(scene_path, defines))
-    info = describe(params.camera, light_geometry(params), ring_deg=ring_deg)
+    info = describe(params.camera, light_geometry(params, light), ring_deg=ring_deg)
     info["scene"] = scene_path
+    info["light"], info["lights"] = light, len(params.lights)
     return info
 
 
@@ -57,7 +65,7 @@ def write_overlay(args, defines) -> dict:
 
     scene = load_scene(args.scene, defines)
     params = SceneParams.from_scene(scene)
-    frame = epipolar_frame(params.camera, light_geometry(params))
+    frame = epipolar_frame(params.camera, light_geometry(params, args.light))
     rgb = read_rgb(args.image) if args.image else preview_image(scene)
     if rgb.shape[:2] != (frame.height, frame.width):
         raise ValueError(f"--image is {rgb.shape[1]}x{rgb.shape[0]} but the scene renders "
@@ -71,7 +79,7 @@ def run(args) -> int:
         from .imageio import output_paths
         if output_paths(args.png)[1] != args.png:
             raise ValueError(f"--png '{args.png}' must end in .png.")
-    info = scene_geometry(args.scene, defines, args.ring)
+    info = scene_geometry(args.scene, defines, args.ring, args.light)
     if args.png:
         info["drawing"] = write_overlay(args, defines)
         if not args.json:
@@ -86,7 +94,7 @@ def run(args) -> int:
     rows = [
         ("scene", info["scene"]),
         ("image", f"{info['width']}x{info['height']}"),
-        ("light", info["light_kind"]),
+        ("light", f"{info['light_kind']} ({info['light']} of {info['lights']})"),
         ("epipole (px)", f"({ex:.2f}, {ey:.2f})"),
         ("case", info["case"]),
         ("slices, sinh", info["slices_sinh"]),

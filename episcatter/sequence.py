@@ -43,14 +43,15 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from integrators.core.shadow_volumes import (Boxes, ShadowVolumes, TriangleGroups, mesh_arrays,
-                                             shape_boxes)
-from integrators.partial.change_mask import change_mask, frame_invariants, whole_frame_changes
-from integrators.core.scene_params import SceneParams
 from integrators.core.film import compose_layers
+from integrators.core.scene_params import SceneParams
+from integrators.core.shadow_volumes import Boxes, TriangleGroups, mesh_arrays, shape_boxes
+from integrators.partial.change_mask import (change_mask_of_lights, frame_invariants,
+                                             whole_frame_changes)
 from integrators.partial.samples import merge_capture
 
 from .motion import ShapeAnimator
+
 
 #: the render template's own stages (the others are the method's, inside ``scattering``)
 TEMPLATE_STAGES = ("validate", "capture", "widen", "scattering", "compose")
@@ -167,8 +168,7 @@ class Sequence:
         mask = None
         if previous is not None and not whole:
             def make_mask():
-                m = change_mask(previous.cap, ShadowVolumes.from_sets(previous.boxes + boxes,
-                                                                      params))
+                m = change_mask_of_lights(previous.cap, previous.boxes + boxes, params)
                 dr.eval(m)
                 return m
             mask = timed("mask", make_mask)

@@ -4,7 +4,8 @@ Mitsuba scene dicts.
 Each scene is a homogeneous medium box (an axis-aligned null-BSDF ``cube``
 of half-size ``B``) around a perspective camera, with random box-shaped and
 spherical occluders, one light (``directional``, ``point``, ``spot`` with or
-without a projected checkerboard ``texture``), an isotropic or
+without a projected checkerboard ``texture``; 1-6 of them in the extended
+set), an isotropic or
 Henyey-Greenstein phase function, σt over six decades of optical depth
 (σt·B from 1e-3 to 1e3) and a small image (odd and even sizes down to 1x1).
 No integrator is set: pass the one to test to ``mi.render``.
@@ -14,9 +15,11 @@ API
 ``random_scene(seed, kind=None) -> SceneSpec``
     The scene of ``seed``; ``kind`` (:data:`KINDS`, :data:`FORCED_KINDS`) forces a case
     class, else the seed picks it (:func:`kind_of_seed`).
-``scene_set(n, first_seed=0) -> list[SceneSpec]``
+``scene_set(n, first_seed=0, extended=False) -> list[SceneSpec]``
     ``n`` consecutive seeds; the case classes recur every
-    ``len(KIND_CYCLE)`` seeds.
+    ``len(KIND_CYCLE)`` seeds.  ``extended``: each scene with 1-6 lights of
+    mixed kinds (:func:`with_more_lights`; the scene is otherwise the
+    seed's own).
 ``SceneSpec``
     Plain data (JSON-able via :meth:`SceneSpec.as_json`): ``.scene_dict()``
     builds the ``mi.load_dict`` input, ``.load()`` loads it,
@@ -100,10 +103,18 @@ class SceneSpec:
     g: float | None                       # HG asymmetry; None = isotropic
     light: dict                           # type + plain parameters (see _light_dict)
     occluders: list[dict] = field(default_factory=list)   # {"shape": "box"/"sphere", ...}
+    #: lights besides ``light`` (the extended generator, :func:`with_more_lights`)
+    more_lights: list[dict] = field(default_factory=list)
 
     @property
     def name(self) -> str:
-        return f"seed {self.seed} ({self.kind}, {self.light['type']}, {self.res[0]}x{self.res[1]})"
+        more = f" +{len(self.more_lights)} lights" if self.more_lights else ""
+        return (f"seed {self.seed} ({self.kind}, {self.light['type']}{more}, "
+                f"{self.res[0]}x{self.res[1]})")
+
+    @property
+    def lights(self) -> list[dict]:
+        return [self.light] + list(self.more_lights)
 
     def at_resolution(self, width: int, height: int) -> "SceneSpec":
         """The same scene rendered at ``width`` x ``height`` (the camera,
@@ -139,6 +150,8 @@ class SceneSpec:
                     "interior": {"type": "ref", "id": "medium"}},
             "light": _light_dict(self.light),
         }
+        for i, light in enumerate(self.more_lights):
+            d[f"light_{i + 2}"] = _light_dict(light)
         if occluders:
             for i, o in enumerate(self.occluders):
                 d[f"occluder_{i}"] = _occluder_dict(o)
@@ -508,6 +521,25 @@ _KIND_BUILDERS = {"random": _random_case, "sun_axis": _sun_axis, "light_at_eye":
                   "enclosed": _enclosed, "shafts": _shafts}
 
 
-def scene_set(n: int, first_seed: int = 0) -> list[SceneSpec]:
-    """Scenes of seeds ``first_seed .. first_seed + n - 1``."""
-    return [random_scene(s) for s in range(first_seed, first_seed + n)]
+#: most lights of an extended scene
+MAX_LIGHTS = 6
+
+
+def with_more_lights(spec: SceneSpec) -> SceneSpec:
+    """The extended generator's scene of ``spec``: 1-:data:`MAX_LIGHTS`
+    lights of mixed kinds (``spec``'s own plus 0-5 random ones, drawn from
+    a generator of their own so that the rest of the scene is ``spec``'s).
+    An ``enclosed`` scene keeps its one light (its black reference measures
+    leaks)."""
+    if spec.kind == "enclosed":
+        return spec
+    rng = np.random.default_rng([35, spec.seed])
+    more = [_random_light(rng, spec.box_half) for _ in range(int(rng.integers(0, MAX_LIGHTS)))]
+    return replace(spec, more_lights=more)
+
+
+def scene_set(n: int, first_seed: int = 0, extended: bool = False) -> list[SceneSpec]:
+    """Scenes of seeds ``first_seed .. first_seed + n - 1`` (``extended``:
+    through :func:`with_more_lights`)."""
+    specs = [random_scene(s) for s in range(first_seed, first_seed + n)]
+    return [with_more_lights(x) for x in specs] if extended else specs

@@ -434,6 +434,7 @@ def run_random_scene(spec, methods=RANDOM_METHODS, reference_steps: int = c.REFE
     exact = {**exact_props(reference_steps), "output": "scattering"}
     ref, status = render(scene, "raymarch", exact)
     base = {"seed": spec.seed, "kind": spec.kind, "light": spec.light["type"],
+            "lights": len(spec.lights),
             "res": f"{spec.res[0]}x{spec.res[1]}", "sigma_t_B": spec.sigma_t * spec.box_half,
             "occluders": len(spec.occluders)}
     if ref is None:
@@ -487,6 +488,12 @@ def random_summary(rows: list[dict], methods=RANDOM_METHODS) -> dict:
             "max_rel_to_peak": distribution(r["max_rel_to_peak"] for r in lit),
             "mean_ratio_dev": distribution(abs(r["mean_ratio"] - 1.0) for r in lit),
             "leak": distribution(r["leak"] for r in black),
+            "by_lights": {n: {"scenes": sum(r.get("lights", 1) == n for r in mine),
+                              "bounded": sum(r.get("lights", 1) == n and bool(r.get("bounded"))
+                                             for r in mine),
+                              "relmse": distribution(r["relmse"] for r in lit
+                                                     if r.get("lights", 1) == n)}
+                          for n in sorted({r.get("lights", 1) for r in mine})},
         }
     return out
 
@@ -505,6 +512,13 @@ def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
                      " / ".join(c.fmt(d[2][k]) for k in ("p90", "max")),
                      c.fmt(s["leak"]["max"]),
                      ", ".join(f"{k} {v}" for k, v in s["unbounded_by_kind"].items()) or "-"])
+    parts = []
+    if any(len(s["by_lights"]) > 1 for s in summary.values()):
+        counts = sorted({k for s in summary.values() for k in s["by_lights"]})
+        parts = ["Per number of lights: bounded / scenes (relMSE median / max, lit references).",
+                 c.markdown_table(["method"] + [f"{k} light{'s' if k > 1 else ''}" for k in counts],
+                                  [[kind] + [_by_lights_cell(s["by_lights"].get(k)) for k in counts]
+                                   for kind, s in summary.items()])]
     return "\n\n".join([
         f"# stability, randomised set (seeds {first_seed}..{first_seed + n - 1})",
         "Scenes of experiments.random_scenes; each integrator at its defaults, output "
@@ -513,19 +527,27 @@ def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
         f"relMSE <= {BOUND:g}, max |error| <= {PEAK_BOUND:g} x peak, |mean ratio - 1| <= "
         f"{MEAN_BOUND:g}; black reference -> largest value <= {LEAK_BOUND:g} x the unoccluded "
         f"reference's peak; references with 0 < peak < {INVISIBLE_PEAK:g} are not judged.",
-        c.markdown_table(header, body)])
+        c.markdown_table(header, body)] + parts)
+
+
+def _by_lights_cell(cell) -> str:
+    if not cell or not cell["scenes"]:
+        return "-"
+    d = cell["relmse"]
+    return (f"{cell['bounded']}/{cell['scenes']} ({c.fmt(d['median'])} / {c.fmt(d['max'])})")
 
 
 def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
                steps: int = c.REFERENCE_STEPS, tag: str = "random",
-               params: dict | None = None) -> list[dict]:
-    """The randomised set: ``n`` scenes from ``first_seed``, each method at
-    its defaults plus ``params[method]``; writes ``<tag>.csv``,
-    ``<tag>.json`` (settings, rows, summary) and ``<tag>.md``."""
+               params: dict | None = None, extended: bool = False) -> list[dict]:
+    """The randomised set: ``n`` scenes from ``first_seed`` (``extended``:
+    the generator's 1-6-light scenes), each method at its defaults plus
+    ``params[method]``; writes ``<tag>.csv``, ``<tag>.json`` (settings,
+    rows, summary) and ``<tag>.md``."""
     from . import random_scenes
 
     rows = []
-    specs = random_scenes.scene_set(n, first_seed)
+    specs = random_scenes.scene_set(n, first_seed, extended=extended)
     for i, spec in enumerate(specs):
         new = run_random_scene(spec, methods, steps, params)
         rows += new
@@ -536,6 +558,7 @@ def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
             for r in new), flush=True)
     summary = random_summary(rows, methods)
     settings = {"name": NAME, "set": tag, "scenes": n, "first_seed": first_seed,
+                "extended": extended,
                 "methods": list(methods), "params": params or {},
                 "reference_steps": steps, "bound_relmse": BOUND,
                 "bound_peak": PEAK_BOUND, "bound_mean": MEAN_BOUND, "bound_leak": LEAK_BOUND,
@@ -550,7 +573,8 @@ def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
 
 
 
-LOG_LINE = re.compile(r"^\[\d+/\d+\] seed (\d+) \((\w+), (\w+), (\d+x\d+)\): (.*)$")
+LOG_LINE = re.compile(r"^\[\d+/\d+\] seed (\d+) \((\w+), (\w+)(?: \+\d+ lights)?, (\d+x\d+)\): "
+                      r"(.*)$")
 LOG_METHOD = re.compile(r"(\w+) (ok|UNBOUNDED) relMSE (\S+) max/peak (\S+) mean (\S+) leak (\S+)")
 
 
@@ -663,6 +687,9 @@ def main(argv=None):
                    help="run the randomised set of N generated scenes instead of the fixed cases")
     p.add_argument("--first-seed", type=int, default=0, help="first seed of --random")
     p.add_argument("--tag", default="random", help="file stem of --random's outputs")
+    p.add_argument("--extended", action="store_true",
+                   help="--random draws the extended generator's scenes (1-6 lights of mixed "
+                        "kinds)")
     p.add_argument("--methods", nargs="+", default=list(RANDOM_METHODS),
                    help="integrators of --random (default: all three)")
     p.add_argument("--set", action="append", default=[], metavar="METHOD:KEY=VALUE",
@@ -684,7 +711,8 @@ def main(argv=None):
         out = c.output_dir(NAME, args.out, args.quick)
         return run_random(args.random, args.first_seed, out, tuple(args.methods),
                           steps=256 if args.quick else c.REFERENCE_STEPS, tag=args.tag,
-                          params=method_settings(args.set, args.methods))
+                          params=method_settings(args.set, args.methods),
+                          extended=args.extended)
     s = settings_for(args.quick)
     if args.quick:
         s["quick_subset"] = True

@@ -10,7 +10,9 @@ every scene follows (other code relies on them):
   sitting inside the ``homogeneous`` medium ``medium``;
 - that medium is bounded by exactly one axis-aligned null-BSDF ``cube``
   (id ``medium_box``) that encloses the camera, all geometry and the light;
-- exactly one emitter (id ``light``): ``directional``, ``point`` or ``spot``;
+- one emitter (id ``light``): ``directional``, ``point`` or ``spot`` --
+  several (ids ``light``, ``light_2``, ...) in ``MULTI_LIGHT_SUITE``
+  (:mod:`scenes.several_lights`);
 - all other shapes are ``diffuse``: black in the plain scenes (only scattered
   light shows), coloured in the ``<name>_lit`` variants.
 
@@ -25,6 +27,8 @@ from .assets import SCENE_DIR, ensure_assets
 from .catalog import SCENES
 from .fourier_stress import EMITTER_TYPE as STRESS_EMITTER_TYPE
 from .fourier_stress import SCENES as STRESS_SCENES
+from .several_lights import EMITTER_TYPES as MULTI_LIGHT_EMITTER_TYPES
+from .several_lights import SCENES as MULTI_LIGHT_SCENES
 
 #: the plain (black-surface) scenes, in suite order
 SUITE: list[str] = list(SCENES)
@@ -32,8 +36,11 @@ SUITE: list[str] = list(SCENES)
 LIT_SUITE: list[str] = [f"{name}_lit" for name in SUITE]
 #: scenes that stress ``fourier_filter`` (issue 12, :mod:`scenes.fourier_stress`)
 STRESS_SUITE: list[str] = list(STRESS_SCENES)
+#: scenes lit by several lights (:mod:`scenes.several_lights`)
+MULTI_LIGHT_SUITE: list[str] = list(MULTI_LIGHT_SCENES)
 #: every scene file stem
-ALL_SCENES: list[str] = SUITE + LIT_SUITE + STRESS_SUITE + [f"{n}_lit" for n in STRESS_SUITE]
+ALL_SCENES: list[str] = (SUITE + LIT_SUITE + STRESS_SUITE + [f"{n}_lit" for n in STRESS_SUITE]
+                         + MULTI_LIGHT_SUITE + [f"{n}_lit" for n in MULTI_LIGHT_SUITE])
 
 #: emitter plugin of each plain scene (the lit variant has the same)
 EMITTER_TYPE: dict[str, str] = {
@@ -41,6 +48,9 @@ EMITTER_TYPE: dict[str, str] = {
     "grove": "directional", "terrain": "directional", "spot_room": "spot",
     "point_fog": "point", "beam": "directional", **STRESS_EMITTER_TYPE,
 }
+#: emitter plugins of every plain scene, in document order
+EMITTER_TYPES: dict[str, tuple[str, ...]] = {
+    **{name: (kind,) for name, kind in EMITTER_TYPE.items()}, **MULTI_LIGHT_EMITTER_TYPES}
 
 
 def path(name: str) -> str:
@@ -54,5 +64,6 @@ def path(name: str) -> str:
     return str(SCENE_DIR / f"{name}.xml")
 
 
-__all__ = ["SUITE", "LIT_SUITE", "STRESS_SUITE", "ALL_SCENES", "EMITTER_TYPE", "SCENE_DIR",
+__all__ = ["SUITE", "LIT_SUITE", "STRESS_SUITE", "MULTI_LIGHT_SUITE", "ALL_SCENES", "EMITTER_TYPE",
+           "EMITTER_TYPES", "SCENE_DIR",
            "ensure_assets", "path"]

@@ -1,7 +1,8 @@
 """Write the scene suite: ``python -m scenes.generate [--force-assets]``.
 
 Rewrites every ``scenes/<name>.xml`` and ``scenes/<name>_lit.xml`` from
-:mod:`scenes.catalog` and builds the generated meshes and textures that are
+:mod:`scenes.catalog`, :mod:`scenes.fourier_stress` and
+:mod:`scenes.several_lights` and builds the generated meshes and textures that are
 missing or out of date (:func:`scenes.assets.ensure_assets`).  Deterministic:
 fixed seeds, fixed number formatting, so the same code writes the same bytes.
 """
@@ -12,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import assets, catalog, fourier_stress
+from . import assets, catalog, fourier_stress, several_lights
 from .meshes import write_atomic
 
 LIT_SUFFIX = "_lit"
@@ -21,7 +22,8 @@ LIT_SUFFIX = "_lit"
 def scene_texts() -> dict[str, str]:
     """``{file stem: XML text}`` for every scene and its ``_lit`` variant."""
     texts = {}
-    for name, build in {**catalog.SCENES, **fourier_stress.SCENES}.items():
+    for name, build in {**catalog.SCENES, **fourier_stress.SCENES,
+                        **several_lights.SCENES}.items():
         texts[name] = build(lit=False).to_string()
         texts[name + LIT_SUFFIX] = build(lit=True).to_string()
     return texts

@@ -5,7 +5,8 @@ Every scene of the suite has the same skeleton (see the docstring of
 size, the sample count and the medium; a ``volpath`` integrator with
 ``max_depth=2``; one perspective sensor inside a homogeneous medium; one
 axis-aligned null-BSDF ``cube`` (id ``medium_box``) bounding that medium; one
-emitter; and diffuse shapes.  :class:`SceneXML` writes exactly that, with
+emitter (several in :mod:`scenes.several_lights`: ids ``light``, ``light_2``,
+...); and diffuse shapes.  :class:`SceneXML` writes exactly that, with
 numbers formatted deterministically so that regenerating a scene yields the
 same bytes.
 """
@@ -50,10 +51,10 @@ class Medium:
 class SceneXML:
     """Builds one scene document.
 
-    Call :meth:`medium`, :meth:`camera`, :meth:`medium_box`, one emitter
-    method and any number of shape methods, then :meth:`to_string`.  Element
+    Call :meth:`medium`, :meth:`camera`, :meth:`medium_box`, one or more
+    emitter methods and any number of shape methods, then :meth:`to_string`.  Element
     order in the output is fixed: defaults, integrator, medium, sensor, BSDFs,
-    emitter, shapes.
+    emitters, shapes.
     """
 
     def __init__(self, comment: str = ""):
@@ -63,7 +64,7 @@ class SceneXML:
         self._medium: ET.Element | None = None
         self._sensor: ET.Element | None = None
         self._bsdfs: dict[str, ET.Element] = {}
-        self._emitter: ET.Element | None = None
+        self._emitters: list[ET.Element] = []
         self._shapes: list[ET.Element] = []
         self._ids: set[str] = set()
 
@@ -192,7 +193,7 @@ class SceneXML:
     def to_string(self) -> str:
         """The document as text (deterministic: same calls, same bytes)."""
         missing = [n for n, el in (("medium", self._medium), ("camera", self._sensor),
-                                   ("emitter", self._emitter)) if el is None]
+                                   ("emitter", self._emitters or None)) if el is None]
         if missing or "medium_box" not in self._ids:
             raise ValueError(f"scene is incomplete: missing {missing or ['medium_box']}")
         root = ET.Element("scene", version="3.0.0")
@@ -201,7 +202,7 @@ class SceneXML:
         integ = ET.SubElement(root, "integrator", type="volpath")
         ET.SubElement(integ, "integer", name="max_depth", value="2")
         root.extend([self._medium, self._sensor, *self._bsdfs.values(),
-                     self._emitter, *self._shapes])
+                     *self._emitters, *self._shapes])
         ET.indent(root, space="    ")
         body = ET.tostring(root, encoding="unicode")
         head = '<?xml version="1.0" encoding="utf-8"?>\n'
@@ -211,10 +212,11 @@ class SceneXML:
 
     # -- helpers ------------------------------------------------------------
     def _new_emitter(self, kind: str) -> ET.Element:
-        if self._emitter is not None:
-            raise ValueError("a suite scene has exactly one emitter")
-        self._emitter = ET.Element("emitter", type=kind, id="light")
-        return self._emitter
+        """The next emitter: ids ``light``, ``light_2``, ``light_3``, ..."""
+        n = len(self._emitters) + 1
+        self._emitters.append(ET.Element("emitter", type=kind,
+                                         id="light" if n == 1 else f"light_{n}"))
+        return self._emitters[-1]
 
     def _shape(self, kind: str, ident: str, bsdf: str | None = None) -> ET.Element:
         if ident in self._ids:

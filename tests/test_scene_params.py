@@ -33,6 +33,19 @@ def test_reads_local_lights(light):
         assert p.light.textured and p.light.cutoff_angle == pytest.approx(35)
 
 
+def test_reads_several_lights_one_at_a_time():
+    """Several emitters: every one read, each alone in its per-light params;
+    asking the several-light params for 'the' light is an error."""
+    p = params_of(light2=LIGHTS["point"])
+    assert [l.kind for l in p.lights] == ["directional", "point"]
+    with pytest.raises(RuntimeError, match="per_light"):
+        p.light
+    one = p.per_light()
+    assert [q.light.kind for q in one] == ["directional", "point"]
+    assert all(q.camera is p.camera and q.medium is p.medium for q in one)
+    assert params_of().per_light()[0].light.kind == "directional"
+
+
 def test_plain_spot_is_not_textured():
     assert not params_of(light="spot").light.textured
 
@@ -64,8 +77,9 @@ CASES = {
         "type": "rectangle", "to_world": T().translate([0, 2, 0]),
         "emitter": {"type": "area", "radiance": 1.0}}), "not supported"),
     "environment map": (bad(light={"type": "constant", "radiance": 1.0}), "not supported"),
-    "two lights": (bad(light2=LIGHTS["point"]), "2 emitters"),
-    "no light": (bad(light=None), "0 emitters"),
+    "a light beside an environment": (bad(light2={"type": "constant", "radiance": 1.0}),
+                                      "ConstantBackgroundEmitter.*not supported"),
+    "no light": (bad(light=None), "no emitter"),
     "orthographic camera": (lambda: {**scene_dict(), "sensor": {
         **{k: v for k, v in scene_dict()["sensor"].items() if k != "fov"},
         "type": "orthographic"}}, "perspective"),

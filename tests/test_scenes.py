@@ -134,8 +134,9 @@ def test_xml_conventions(name):
     assert film.find("rfilter").get("type") == "box"
     assert film.find("string[@name='pixel_format']").get("value") == "rgb"
     emitters = root.findall("emitter")
-    assert len(emitters) == 1
-    assert emitters[0].get("type") == scenes.EMITTER_TYPE[_stem(name)]
+    assert tuple(e.get("type") for e in emitters) == scenes.EMITTER_TYPES[_stem(name)]
+    assert [e.get("id") for e in emitters] == ["light"] + [f"light_{k}" for k in
+                                                           range(2, len(emitters) + 1)]
     boundary = [s for s in root.findall("shape") if s.find("ref[@name='interior']") is not None]
     assert [s.get("id") for s in boundary] == ["medium_box"]
     box = boundary[0]
@@ -159,8 +160,8 @@ def test_defaults_override():
 @pytest.mark.parametrize("name", scenes.ALL_SCENES)
 def test_loaded_scene_structure(name):
     scene = _load(name)
-    (emitter,) = scene.emitters()
-    assert emitter.class_name() == EMITTER_CLASS[scenes.EMITTER_TYPE[_stem(name)]]
+    assert [e.class_name() for e in scene.emitters()] == [
+        EMITTER_CLASS[kind] for kind in scenes.EMITTER_TYPES[_stem(name)]]
     medium = scene.sensors()[0].get_medium()
     assert medium is not None and medium.class_name() == "HomogeneousMedium"
     boundary = [s for s in scene.shapes() if s.interior_medium() is not None]
@@ -173,9 +174,10 @@ def test_loaded_scene_structure(name):
     verts = np.array(mi.traverse(box)["vertex_positions"], dtype=float).reshape(-1, 3)
     assert np.all(np.isclose(verts, lo) | np.isclose(verts, hi)), "box not axis-aligned"
     assert np.all(lo < _camera_origin(scene)) and np.all(_camera_origin(scene) < hi)
-    light = _light_homogeneous(emitter)
-    if light[3] == 1:
-        assert np.all(lo < light[:3]) and np.all(light[:3] < hi)
+    for emitter in scene.emitters():
+        light = _light_homogeneous(emitter)
+        if light[3] == 1:
+            assert np.all(lo < light[:3]) and np.all(light[:3] < hi)
     lit = name.endswith(generate.LIT_SUFFIX)
     any_colour = False
     for shape in scene.shapes():

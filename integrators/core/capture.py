@@ -169,8 +169,11 @@ def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
     d = dr.minimum(t_surf, t_exit)
     T_cam = dr.exp(-color(params.medium.sigma_t) * d)
     L_surface = dr.zeros(mi.Color3f, dr.width(d))
-    if surface:
-        L_surface = surface_direct_lighting(params, si, ray)
+    if surface:     # the sum over the lights (linear in the light)
+        lights = params.per_light()
+        L_surface = surface_direct_lighting(lights[0], si, ray)
+        for one in lights[1:]:
+            L_surface += surface_direct_lighting(one, si, ray)
     cap = CameraCapture(width=cam.width, height=cam.height, spp=spp, pixel=pixel,
                         o=ray.o, omega=ray.d, d=d, T_cam=T_cam, L_surface=L_surface,
                         hit=si.is_valid(),
@@ -180,7 +183,8 @@ def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
 
 
 def surface_direct_lighting(params, si, ray):
-    """Direct lighting of the visible surface (BSDF · light · V · e^{-σt τ})."""
+    """Direct lighting of the visible surface by ``params``' one light
+    (BSDF · light · V · e^{-σt τ})."""
     active = si.is_valid()
     ds, spec = params.light.emitter.sample_direction(si, mi.Point2f(0.5, 0.5), active)
     wo = ds.d

@@ -3,14 +3,14 @@
 This is the only module that queries Mitsuba scene objects for their
 parameters.  :func:`SceneParams.from_scene` returns frozen dataclasses for the
 camera, the homogeneous medium attached to the sensor (with its box boundary)
-and the single light, or raises :class:`ValueError` naming the offending object
+and the lights (one or several directional, point and spot emitters), or raises :class:`ValueError` naming the offending object
 and what to change.  Nothing unsupported renders silently wrong.
 """
 from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mitsuba as mi
 import numpy as np
@@ -90,7 +90,7 @@ class MediumParams:
 
 @dataclass(frozen=True, eq=False)
 class LightParams:
-    """The scene's single emitter.  ``direction`` (directional lights) points
+    """One emitter of the scene.  ``direction`` (directional lights) points
     from the scene *toward* the light; ``position`` is set for point/spot."""
     kind: str                       # 'directional' | 'point' | 'spot'
     radiance: np.ndarray            # irradiance (directional) or intensity (RGB)
@@ -105,11 +105,42 @@ class LightParams:
 
 @dataclass(frozen=True, eq=False)
 class SceneParams:
+    """The camera, the medium and the lights of one render.
+
+    Single scattering and direct surface lighting are linear in the light:
+    a scene with several emitters renders as the sum over its lights, each
+    with its own epipolar geometry, on one shared camera capture.  The
+    methods see one light at a time (:meth:`per_light`); :attr:`light` is
+    that light, and asking a several-light ``SceneParams`` for it is an
+    error (a stage that forgot the sum would otherwise render one light)."""
     camera: CameraParams
     medium: MediumParams
-    light: LightParams
+    lights: tuple
     scene: object = field(repr=False, default=None)
     sensor: object = field(repr=False, default=None)
+
+    @property
+    def light(self) -> LightParams:
+        """The light of a one-light ``SceneParams`` (see :meth:`per_light`)."""
+        if len(self.lights) != 1:
+            raise RuntimeError(
+                f"SceneParams has {len(self.lights)} lights: a per-light stage must be called "
+                "on each of params.per_light() and its results summed.")
+        return self.lights[0]
+
+    def per_light(self) -> tuple["SceneParams", ...]:
+        """One ``SceneParams`` per light (``self`` for a one-light scene),
+        sharing the camera, the medium and the caches that do not depend on
+        the light."""
+        if len(self.lights) == 1:
+            return (self,)
+        cache = self.__dict__.setdefault("_near_boundary", {})
+        out = []
+        for light in self.lights:
+            one = replace(self, lights=(light,))
+            one.__dict__["_near_boundary"] = cache
+            out.append(one)
+        return tuple(out)
 
     @property
     def scene_extent(self) -> float:
@@ -161,8 +192,8 @@ class SceneParams:
                 f"[{medium.bounds_min.tolist()}, {medium.bounds_max.tolist()}] although "
                 "the medium is attached to the sensor: enlarge the boundary cube so it "
                 "encloses the camera.")
-        light = read_light(scene)
-        return SceneParams(camera=camera, medium=medium, light=light,
+        lights = read_lights(scene)
+        return SceneParams(camera=camera, medium=medium, lights=lights,
                            scene=scene, sensor=sensor)
 
 
@@ -274,20 +305,31 @@ def _read_boundary(scene, med):
     return bmin, bmax
 
 
-def read_light(scene) -> LightParams:
+#: what a scene's emitters must be, in every refusal
+LIGHTS_FIX = ("use <emitter> elements of type directional, point or spot (one or several); "
+              "area lights, environment maps and constant backgrounds produce no shafts in "
+              "this model -- render those scenes with Mitsuba's volpath.")
+
+
+def read_lights(scene) -> tuple[LightParams, ...]:
+    """Every emitter of the scene, each a supported kind, or a ValueError
+    naming the ones that are not (and the scene without any)."""
     emitters = list(scene.emitters())
     if scene.environment() is not None and all(e is not scene.environment() for e in emitters):
         emitters.append(scene.environment())
-    fix = ("use exactly one <emitter> of type directional, point or spot "
-           "(no area lights, environment maps or constant backgrounds).")
-    if len(emitters) != 1:
-        names = ", ".join(_name(e) for e in emitters) or "none"
-        raise ValueError(f"The scene has {len(emitters)} emitters ({names}): {fix}")
-    em = emitters[0]
-    cls = em.class_name()
-    if cls not in SUPPORTED_EMITTERS:
-        raise ValueError(f"Emitter {_name(em)} is not supported: {fix}")
-    kind = SUPPORTED_EMITTERS[cls]
+    if not emitters:
+        raise ValueError(f"The scene has no emitter: {LIGHTS_FIX}")
+    bad = [e for e in emitters if e.class_name() not in SUPPORTED_EMITTERS]
+    if bad:
+        names = ", ".join(_name(e) for e in bad)
+        raise ValueError(f"The scene's emitter{'s' if len(bad) > 1 else ''} {names} "
+                         f"{'are' if len(bad) > 1 else 'is'} not supported: {LIGHTS_FIX}")
+    return tuple(read_light(e) for e in emitters)
+
+
+def read_light(em) -> LightParams:
+    """One supported emitter's parameters (validated)."""
+    kind = SUPPORTED_EMITTERS[em.class_name()]
     params = mi.traverse(em)
     if kind == "directional":
         radiance = _vec(params["irradiance.value"])

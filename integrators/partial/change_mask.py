@@ -27,6 +27,17 @@ import numpy as np
 from ..core.shadow_volumes import Boxes, ShadowVolumes, clip_segments, in_shadow_volume_reference
 
 
+def change_mask_of_lights(cap, sets, params) -> mi.Bool:
+    """:func:`change_mask` for the moving objects' box ``sets`` under every
+    light of ``params``: a sample is dirty when its segment meets the
+    shadow volume of a moving object from any light."""
+    mask = None
+    for one in params.per_light():
+        m = change_mask(cap, ShadowVolumes.from_sets(sets, one))
+        mask = m if mask is None else mask | m
+    return mask
+
+
 def change_mask(cap, volumes: ShadowVolumes) -> mi.Bool:
     """Dirty camera samples (module doc) from the *previous* frame's capture
     ``cap``: its segment ``[0, d_prev]`` meets one of ``volumes`` (the moving
@@ -42,14 +53,17 @@ def change_mask(cap, volumes: ShadowVolumes) -> mi.Bool:
 def frame_invariants(params) -> dict:
     """What every sample depends on besides the occluders: camera, light and
     medium parameters as NumPy arrays (compared by :func:`whole_frame_changes`)."""
-    cam, light, med = params.camera, params.light, params.medium
-    em = mi.traverse(light.emitter)
+    cam, med = params.camera, params.medium
     ph = mi.traverse(med.phase)
+    lights = []
+    for light in params.lights:
+        em = mi.traverse(light.emitter)
+        lights += [np.ravel(np.array(em[k], dtype=np.float64)) for k in sorted(em.keys())
+                   if _numeric(em[k])] + [[len(light.kind)]]
     return {
         "camera": np.concatenate([cam.origin, cam.forward, cam.x_axis, cam.y_axis,
                                   [cam.width, cam.height, cam.near_clip]]),
-        "light": np.concatenate([np.ravel(np.array(em[k], dtype=np.float64)) for k in sorted(em.keys())
-                                 if _numeric(em[k])] + [[len(light.kind)]]),
+        "light": np.concatenate(lights),
         "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max]
                                  + [np.ravel(np.array(ph[k], dtype=np.float64))
                                     for k in sorted(ph.keys()) if _numeric(ph[k])]),

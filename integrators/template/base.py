@@ -122,6 +122,22 @@ class RenderRecord:
     stage: str = "other"
 
 
+@dataclass(frozen=True)
+class LightState:
+    """What a several-light render keeps of one light for the next frame's
+    partial render: the method's own frame state (None: none), the light's
+    L_scat on every sample of the full capture (None: a subset was
+    captured) and its frame choices (``stats["frame_choices"]``)."""
+    frame_state: object
+    L_scat: object
+    choices: object
+
+
+class LightStates(tuple):
+    """The :class:`LightState` of every light of a several-light render, in
+    the scene's order (its ``RenderResult.frame_state``)."""
+
+
 def count_launches(record: RenderRecord, stage: str) -> None:
     """Charge the JIT kernels launched since the last count to ``stage``."""
     n = len(drain_jit_kernels())
@@ -265,6 +281,73 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         (a sentence naming the fix), or None (hook; default None: a partial
         render equals the full render on its computed samples)."""
         return None
+
+    # -- several lights: the sum over them ------------------------------------------
+    def scattering_of_lights(self, params: SceneParams, cap: CameraCapture) -> mi.Color3f:
+        """L_scat of every camera sample: the sum over the lights of the
+        method's :meth:`scattering` (single scattering is linear in the
+        light; each light has its own epipolar geometry and visibility
+        capture, the camera capture is shared).  With several lights the
+        render hands on a :class:`LightStates`: each light's frame state,
+        its L_scat on the full capture and its frame choices, so that a
+        partial render of the next frame completes each light from its own
+        last values."""
+        lights = params.per_light()
+        if len(lights) == 1:
+            return self.scattering(params, cap)
+        record, total, states = self.render_record, None, []
+        for one in lights:
+            record.frame_state = None
+            record.stats.pop("frame_choices", None)
+            L = self.scattering(one, cap)
+            states.append(LightState(record.frame_state, L if cap.parent is None else None,
+                                     record.stats.pop("frame_choices", None)))
+            total = L if total is None else total + L
+        self._hand_on(record, states)
+        return total
+
+    def partial_scattering_of_lights(self, params: SceneParams, cap: CameraCapture,
+                                     mask: mi.Bool, moved=None):
+        """:meth:`partial_scattering` summed over the lights.  Each light
+        computes its own widening of ``mask``; where it computes nothing, its
+        value is the last frame's (``RenderRecord.given``, a
+        :class:`LightStates`): those samples are outside the mask, so no
+        moved object's shadow volume from any light meets them, and outside
+        every row the light recomputes.  Without such a state (or with a
+        different count of lights) every sample is computed."""
+        lights = params.per_light()
+        if len(lights) == 1:
+            return self.partial_scattering(params, cap, mask, moved)
+        record = self.render_record
+        given = record.given
+        if not (isinstance(given, LightStates) and len(given) == len(lights)
+                and all(g.L_scat is not None and dr.width(g.L_scat) == cap.count
+                        for g in given)):
+            with self.stage("scattering") as keep:
+                L_scat = self.scattering_of_lights(params, cap)
+                keep.append(L_scat)
+            return L_scat, dr.full(mi.Bool, True, cap.count)
+        total, union, states = None, None, []
+        try:
+            for one, last in zip(lights, given):
+                record.given, record.frame_state = last.frame_state, None
+                record.stats.pop("frame_choices", None)
+                L, computed = self.partial_scattering(one, cap, mask, moved)
+                L = dr.select(computed, L, last.L_scat)
+                states.append(LightState(record.frame_state, L,
+                                         record.stats.pop("frame_choices", last.choices)))
+                total = L if total is None else total + L
+                union = computed if union is None else union | computed
+        finally:
+            record.given = given
+        self._hand_on(record, states)
+        return dr.select(union, total, 0.0), union
+
+    def _hand_on(self, record: RenderRecord, states: list) -> None:
+        """A several-light render's frame state and frame choices (per light)."""
+        record.frame_state = LightStates(states)
+        record.stats["frame_choices"] = tuple(x.choices for x in states)
+        record.stats["lights"] = len(states)
 
     # -- per-render record and timing --------------------------------------------
     @property
@@ -424,7 +507,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         if samples is not None:
             cam = params.camera
             mask = sample_mask(samples, cam.width * cam.height * spp)
-        alone = mask is not None and self.samples_alone(params)
+        alone = mask is not None and all(self.samples_alone(one) for one in params.per_light())
         with self.stage("capture") as keep:
             index = dr.compress(mask) if alone or known is not None else None
             cap = (empty_capture(params, spp) if index is not None and not dr.width(index) else
@@ -436,12 +519,12 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         computed = None
         if mask is None or alone:
             with self.stage("scattering") as keep:
-                L_scat = (self.scattering(params, cap) if cap.count
+                L_scat = (self.scattering_of_lights(params, cap) if cap.count
                           else dr.zeros(mi.Color3f, 0))
                 keep.append(L_scat)
             computed = mask
         else:
-            L_scat, computed = self.partial_scattering(params, cap, mask, moved)
+            L_scat, computed = self.partial_scattering_of_lights(params, cap, mask, moved)
         with self.stage("compose") as keep:
             layers = compose_layers(cap, L_scat, spp, "mono" in variant,
                                     None if alone else computed)
