@@ -256,7 +256,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         with self.stage("samples"):
             layout = sample_layout(params, s["slices"], s["samples"], self.sample_density)
         if self.marches_every_pixel(params, layout):
-            return self.every_pixel(params, cap, layout, s, shadow_map)
+            return self.every_pixel(params, cap.entered(), layout, s, shadow_map)
         with self.stage("samples"):
             samples = trace_layout(params, layout)
         table = self.section_table(params)
@@ -351,7 +351,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         return flags
 
     def marches_every_pixel(self, params, layout) -> bool:
-        """Whether every pixel is marched on its own: a point or spot light
+        """Whether every pixel is marched on its own: the camera outside the
+        medium (the slices' samples start at the eye), a point or spot light
         beyond the section table's range (:func:`beyond_table_range`), or
         the slices' samples on screen (counted on the host from the
         layout) at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
@@ -361,6 +362,13 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         than the samples would.  The choice depends on the
         camera and the light alone, so a partial render makes the full
         render's."""
+        if params.camera_outside:
+            warnings.warn(
+                "minmax_epipolar: the camera is outside the medium, so every pixel is "
+                "ray-marched from where its ray enters the fog (correct, at a ray marcher's "
+                "cost); put the camera inside the fog volume for the epipolar speed-up.",
+                stacklevel=3)
+            return True
         if beyond_table_range(params):
             return True
         if not self.small_image_march:

@@ -1,7 +1,7 @@
 """Brute-force ray marching: the baseline every paper compares against.
 
-Each camera ray ``x(t) = o + t·ω``, ``t ∈ [0, d]`` is cut into ``steps``
-equal segments; on segment ``k`` the light term is evaluated at one point
+Each camera ray ``x(t) = o + t·ω``, ``t ∈ [0, d]`` (from where it enters the
+medium when the camera is outside it) is cut into ``steps`` equal segments; on segment ``k`` the light term is evaluated at one point
 (the midpoint, or a per-ray jittered offset) and multiplied by the exact
 integral of the camera-side transmittance over the segment:
 
@@ -97,6 +97,7 @@ class RaymarchIntegrator(EpiscatterIntegrator):
         return None
 
     def scattering(self, params, cap):
+        cap = cap.entered()             # a camera outside the medium: from each ray's entry
         shadow_map = None
         if self.visibility == "shadowmap":
             with self.stage("shadowmap"):

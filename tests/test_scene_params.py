@@ -69,7 +69,7 @@ def bad(**kw):
 
 
 CASES = {
-    "no medium on the sensor": (no_medium_sensor, "has no medium"),
+    "no medium on the sensor": (no_medium_sensor, "the sensor has no medium"),
     "heterogeneous medium": (bad(medium={
         "type": "heterogeneous", "id": "medium",
         "sigma_t": {"type": "constvolume", "value": 0.3}}), "not supported"),

@@ -15,14 +15,14 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from .light_transport import (as_color3, box_exit_distance, color, first_blocker,
-                              light_transmittance, point, scalar, segment_box, vector,
+                              light_transmittance, point, scalar, segment_box, slabs, vector,
                               visible_exact)
 from .opaque import floats, reciprocal
 
@@ -115,8 +115,8 @@ class CameraCapture:
     pixel: mi.UInt32
     o: mi.Point3f           # ray origin (on the near plane, as Mitsuba)
     omega: mi.Vector3f      # unit direction
-    d: mi.Float             # in-medium distance along the ray (scattering range)
-    T_cam: mi.Color3f       # e^{-σt d}
+    d: mi.Float             # where the scattering range ends (surface or medium exit)
+    T_cam: mi.Color3f       # e^{-σt (d - t_in)}
     L_surface: mi.Color3f   # lit surface radiance at the hit, before T_cam
     hit: mi.Bool            # the ray meets a non-null surface
     #: index of each sample in the full capture (pixel*spp + k); None: all of
@@ -124,6 +124,20 @@ class CameraCapture:
     sample: mi.UInt32 | None = None
     #: the full capture this one is a subset of (None: this is the full one)
     parent: "CameraCapture | None" = None
+    #: camera outside the medium: where each ray enters it (the scattering
+    #: range is [t_in, d]; inf for a ray that misses it); None: the camera is
+    #: inside (t_in = 0)
+    t_in: mi.Float | None = None
+
+    def entered(self) -> "CameraCapture":
+        """The same samples with each ray starting where it enters the
+        medium: origin ``o + t_in·ω``, range ``max(d - t_in, 0)`` (``self``
+        when the camera is inside).  A per-sample method integrating over
+        ``[0, d]`` from ``o`` integrates the medium part of the view ray."""
+        if self.t_in is None:
+            return self
+        t = dr.minimum(self.t_in, self.d)
+        return replace(self, o=self.o + self.omega * t, d=self.d - t, t_in=None)
 
     def endpoints(self) -> mi.Point3f:
         return self.o + self.omega * self.d
@@ -152,7 +166,8 @@ class CameraCapture:
                              pixel=take(self.pixel), o=take(self.o), omega=take(self.omega),
                              d=take(self.d), T_cam=take(self.T_cam),
                              L_surface=take(self.L_surface), hit=take(self.hit),
-                             sample=take(self.sample_index()), parent=self.whole())
+                             sample=take(self.sample_index()), parent=self.whole(),
+                             t_in=None if self.t_in is None else take(self.t_in))
 
 
 def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
@@ -164,10 +179,19 @@ def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
     ray.d = dr.normalize(ray.d)
     si, t_surf = first_surface(scene, ray)
-    t_exit = box_exit_distance(ray.o, ray.d, point(params.medium.bounds_min),
-                               point(params.medium.bounds_max))
-    d = dr.minimum(t_surf, t_exit)
-    T_cam = dr.exp(-color(params.medium.sigma_t) * d)
+    t_in = None
+    if params.camera_outside:
+        # the view ray's medium part: from its entry to the surface or the exit
+        t_near, t_far = slabs(ray.o, ray.d, point(params.medium.bounds_min),
+                              point(params.medium.bounds_max))
+        t_in = dr.select(t_far >= dr.maximum(t_near, 0.0), dr.maximum(t_near, 0.0), dr.inf)
+        d = dr.minimum(t_surf, dr.maximum(t_far, 0.0))
+        T_cam = dr.exp(-color(params.medium.sigma_t) * dr.maximum(d - t_in, 0.0))
+    else:
+        t_exit = box_exit_distance(ray.o, ray.d, point(params.medium.bounds_min),
+                                   point(params.medium.bounds_max))
+        d = dr.minimum(t_surf, t_exit)
+        T_cam = dr.exp(-color(params.medium.sigma_t) * d)
     L_surface = dr.zeros(mi.Color3f, dr.width(d))
     if surface:     # the sum over the lights (linear in the light)
         lights = params.per_light()
@@ -177,8 +201,9 @@ def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
     cap = CameraCapture(width=cam.width, height=cam.height, spp=spp, pixel=pixel,
                         o=ray.o, omega=ray.d, d=d, T_cam=T_cam, L_surface=L_surface,
                         hit=si.is_valid(),
-                        sample=None if samples is None else mi.UInt32(samples))
-    dr.eval(cap.o, cap.omega, cap.d, cap.T_cam, cap.L_surface, cap.hit)
+                        sample=None if samples is None else mi.UInt32(samples), t_in=t_in)
+    dr.eval(cap.o, cap.omega, cap.d, cap.T_cam, cap.L_surface, cap.hit,
+            *(() if t_in is None else (t_in,)))
     return cap
 
 

@@ -118,6 +118,10 @@ class SceneParams:
     lights: tuple
     scene: object = field(repr=False, default=None)
     sensor: object = field(repr=False, default=None)
+    #: the camera sits outside the medium (the sensor has no medium): each
+    #: view ray's integral starts where it enters the medium
+    #: (``CameraCapture.t_in``)
+    camera_outside: bool = False
 
     @property
     def light(self) -> LightParams:
@@ -186,15 +190,22 @@ class SceneParams:
             sensor = sensors[sensor or 0]
         camera = read_camera(sensor)
         medium = read_medium(scene, sensor)
-        if not medium.contains(camera.origin):
+        inside = medium.contains(camera.origin)
+        if sensor.get_medium() is not None and not inside:
             raise ValueError(
                 f"The camera at {camera.origin.tolist()} lies outside the medium box "
                 f"[{medium.bounds_min.tolist()}, {medium.bounds_max.tolist()}] although "
                 "the medium is attached to the sensor: enlarge the boundary cube so it "
-                "encloses the camera.")
+                "encloses the camera, or -- to look at the fog from outside -- remove the "
+                "medium <ref> from the <sensor>.")
+        if sensor.get_medium() is None and inside:
+            raise ValueError(
+                f"The camera at {camera.origin.tolist()} lies inside the boundary of medium "
+                f"{_name(medium.medium)} but the sensor has no medium (volpath would see no "
+                "fog at all): put <ref id=\"...\"/> of that medium inside the <sensor>.")
         lights = read_lights(scene)
         return SceneParams(camera=camera, medium=medium, lights=lights,
-                           scene=scene, sensor=sensor)
+                           scene=scene, sensor=sensor, camera_outside=not inside)
 
 
 # ---------------------------------------------------------------------------
@@ -221,14 +232,35 @@ def read_camera(sensor) -> CameraParams:
     return cam
 
 
-def read_medium(scene, sensor) -> MediumParams:
+def scene_medium(scene, sensor):
+    """The medium to render: the sensor's (the camera inside it), else the
+    one medium that null-BSDF shapes of the scene bound as their
+    ``interior`` (the camera outside it), or a ValueError naming what to
+    change."""
     med = sensor.get_medium()
-    if med is None:
+    if med is not None:
+        return med
+    media = {}
+    for shape in scene.shapes():
+        inner = shape.interior_medium()
+        if inner is not None:
+            media.setdefault(inner.ptr, inner)
+    if not media:
         raise ValueError(
-            f"Sensor {_name(sensor)} has no medium: episcatter renders single "
-            "scattering in the medium the camera sits in. Put "
-            "<ref id=\"your_medium\"/> inside the <sensor> and bound the medium "
-            "with a null-BSDF <shape type=\"cube\"> whose interior is that medium.")
+            f"Sensor {_name(sensor)} has no medium and no shape bounds one: episcatter "
+            "renders single scattering in a homogeneous medium. Bound it with a null-BSDF "
+            "<shape type=\"cube\"> whose interior is that medium (<ref name=\"interior\" "
+            "id=\"your_medium\"/>), and put <ref id=\"your_medium\"/> inside the <sensor> "
+            "if the camera sits in it.")
+    if len(media) > 1:
+        names = ", ".join(_name(m) for m in media.values())
+        raise ValueError(f"The scene bounds {len(media)} media ({names}): episcatter renders "
+                         "one homogeneous medium; merge them into one.")
+    return next(iter(media.values()))
+
+
+def read_medium(scene, sensor) -> MediumParams:
+    med = scene_medium(scene, sensor)
     if med.class_name() != "HomogeneousMedium" or not med.is_homogeneous():
         raise ValueError(
             f"Medium {_name(med)} is not supported: only <medium "

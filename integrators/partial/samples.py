@@ -35,7 +35,8 @@ def empty_capture(params, spp: int) -> CameraCapture:
     return CameraCapture(width=params.camera.width, height=params.camera.height, spp=spp,
                          pixel=u, o=dr.zeros(mi.Point3f, 0), omega=dr.zeros(mi.Vector3f, 0),
                          d=f, T_cam=c, L_surface=mi.Color3f(c), hit=dr.zeros(mi.Bool, 0),
-                         sample=mi.UInt32(u))
+                         sample=mi.UInt32(u),
+                         t_in=mi.Float(f) if params.camera_outside else None)
 
 
 def merge_capture(known: CameraCapture, part: CameraCapture) -> CameraCapture:
@@ -52,8 +53,10 @@ def merge_capture(known: CameraCapture, part: CameraCapture) -> CameraCapture:
         return out
     cap = replace(known, d=put(known.d, part.d), T_cam=put(known.T_cam, part.T_cam),
                   L_surface=put(known.L_surface, part.L_surface), hit=put(known.hit, part.hit),
-                  sample=None, parent=None)
-    dr.eval(cap.d, cap.T_cam, cap.L_surface, cap.hit)
+                  sample=None, parent=None,
+                  t_in=None if known.t_in is None or part.t_in is None
+                  else put(known.t_in, part.t_in))
+    dr.eval(cap.d, cap.T_cam, cap.L_surface, cap.hit, *(() if cap.t_in is None else (cap.t_in,)))
     return cap
 
 

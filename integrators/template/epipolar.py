@@ -15,8 +15,13 @@ whose light rays can meet what moved, with the frame-wide choices made on
 the whole frame (:mod:`integrators.partial.row_subset`), and writes only the samples
 those rows determine; the others compute the whole frame when any sample
 is masked.
+
+A camera outside the medium: every sample is marched from where its ray
+enters the fog (:meth:`EpipolarIntegrator.marched_from_outside`).
 """
 from __future__ import annotations
+
+import warnings
 
 import drjit as dr
 import mitsuba as mi
@@ -26,8 +31,8 @@ from ..epipolar.frame import choose_slices, epipolar_frame_of
 from ..epipolar.kernel.svd import SAMPLES
 from ..epipolar.light_rays.local import cone_samples, resolve_lit_cone
 from ..epipolar.queries import assign_queries
-from ..epipolar.ring import (RING_BISECTIONS, disagreeing_samples, march_ring, remarch_samples,
-                             to_samples, union_samples)
+from ..epipolar.ring import (RING_BISECTIONS, disagreeing_samples, march_ring, peak_marched,
+                             remarch_samples, to_samples, union_samples)
 from ..partial.row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries,
                                   reuse_rectification)
 from .base import EpiscatterIntegrator
@@ -134,6 +139,30 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                                                       self.slice_interpolation)
         return queries, plan
 
+    def samples_alone(self, params) -> bool:
+        """The camera outside the medium: every sample is marched on its own
+        (:meth:`marched_from_outside`)."""
+        return bool(params.camera_outside)
+
+    def marched_from_outside(self, params, cap):
+        """Stage ``ring`` of a camera outside the medium: every camera sample
+        marched from where its ray enters the medium (``cap.entered()``) by
+        the ring's exact marcher (``ring_steps``, ``ring_bisections``).  The
+        slices' light rays and queries assume integrals that start at the
+        eye, so here the method is correct at a ray marcher's cost; a
+        warning says so."""
+        warnings.warn(
+            f"{self.method_name}: the camera is outside the medium, so every pixel is "
+            "ray-marched from where its ray enters the fog (correct, at a ray marcher's "
+            "cost); put the camera inside the fog volume for the epipolar speed-up.",
+            stacklevel=4)
+        with self.stage("ring") as keep:
+            L = peak_marched(params, cap.entered(), epipolar_frame_of(params), self.ring_steps,
+                             self.ring_bisections)
+            keep.append(L)
+        self.record(marched_from_outside=cap.count)
+        return L
+
     def widen_samples(self, params, cap, mask, moved=None):
         """Per slice (``ROW_SUBSETS``, rows without a ``plan``): every sample
         of a row that holds a masked sample or whose slice meets a ``moved``
@@ -170,6 +199,8 @@ class EpipolarIntegrator(EpiscatterIntegrator):
 
     def scattering(self, params, cap):
         self.check_light(params)
+        if params.camera_outside:
+            return self.marched_from_outside(params, cap)
         queries, plan = self.rectify(params, cap)
         return self.integrate_rows(params, cap, queries, plan)
 
