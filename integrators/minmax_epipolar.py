@@ -352,8 +352,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
 
     def marches_every_pixel(self, params, layout) -> bool:
         """Whether every pixel is marched on its own: the camera outside the
-        medium (the slices' samples start at the eye), a point or spot light
-        beyond the section table's range (:func:`beyond_table_range`), or
+        medium (the slices' samples start at the eye), a directional light
+        in a sphere-bounded medium (no piecewise-linear light-side path), a
+        point or spot light beyond the section table's range (:func:`beyond_table_range`), or
         the slices' samples on screen (counted on the host from the
         layout) at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
         such small images every pixel spans a wide angle between slices, so
@@ -367,6 +368,13 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 "minmax_epipolar: the camera is outside the medium, so every pixel is "
                 "ray-marched from where its ray enters the fog (correct, at a ray marcher's "
                 "cost); put the camera inside the fog volume for the epipolar speed-up.",
+                stacklevel=3)
+            return True
+        if params.light.kind == "directional" and params.medium.boundary == "sphere":
+            warnings.warn(
+                "minmax_epipolar: a sun in a sphere-bounded medium has no piecewise-linear "
+                "light-side path, so every pixel is ray-marched (correct, at a ray marcher's "
+                "cost); bound the fog with a <shape type=\"cube\"> for the epipolar speed-up.",
                 stacklevel=3)
             return True
         if beyond_table_range(params):

@@ -16,6 +16,7 @@ from episcatter.metrics import block_average, noise_relmse_from_variance, scale_
 from integrators.core.scene_params import SceneParams
 from tests.conftest import scene_dict
 
+
 METHODS = ["raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar"]
 
 

@@ -21,9 +21,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .light_transport import (as_color3, box_exit_distance, color, first_blocker,
-                              light_transmittance, point, scalar, segment_box, slabs, vector,
-                              visible_exact)
+from .light_transport import (as_color3, color, first_blocker, light_transmittance,
+                              medium_exit_distance, medium_interval, point, scalar, segment_box,
+                              vector, visible_exact)
 from .opaque import floats, reciprocal
 
 
@@ -182,14 +182,12 @@ def capture_camera(params, spp=1, jitter=False, seed=0, surface=True,
     t_in = None
     if params.camera_outside:
         # the view ray's medium part: from its entry to the surface or the exit
-        t_near, t_far = slabs(ray.o, ray.d, point(params.medium.bounds_min),
-                              point(params.medium.bounds_max))
+        t_near, t_far = medium_interval(params, ray.o, ray.d)
         t_in = dr.select(t_far >= dr.maximum(t_near, 0.0), dr.maximum(t_near, 0.0), dr.inf)
         d = dr.minimum(t_surf, dr.maximum(t_far, 0.0))
         T_cam = dr.exp(-color(params.medium.sigma_t) * dr.maximum(d - t_in, 0.0))
     else:
-        t_exit = box_exit_distance(ray.o, ray.d, point(params.medium.bounds_min),
-                                   point(params.medium.bounds_max))
+        t_exit = medium_exit_distance(params, ray.o, ray.d)
         d = dr.minimum(t_surf, t_exit)
         T_cam = dr.exp(-color(params.medium.sigma_t) * d)
     L_surface = dr.zeros(mi.Color3f, dr.width(d))

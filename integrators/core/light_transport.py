@@ -7,7 +7,8 @@ For a point ``x`` inside the medium and the camera direction ``ω``:
   delivers without the medium (``irradiance``, or ``intensity/r²`` times the
   spot falloff and projected texture).
 * :func:`light_transmittance` — ``e^{-σt·τ(x)}``, ``τ`` = length of the path
-  from ``x`` toward the light inside the medium box.
+  from ``x`` toward the light inside the medium (:func:`medium_interval`:
+  an axis-aligned box, a rotated or sheared box, a sphere).
 * :func:`visible_exact` — ray-traced visibility ``V(x)`` (occluders inside and
   outside the medium box; the null-BSDF box itself does not occlude).
 * :func:`phase_eval` — the medium's phase function evaluated exactly as
@@ -48,11 +49,6 @@ def slabs(p, d, bmin, bmax):
     return dr.max(dr.minimum(t0, t1)), dr.min(dr.maximum(t0, t1))
 
 
-def box_exit_distance(p, d, bmin, bmax):
-    """Distance along unit ``d`` from ``p`` (inside the box) to the box boundary."""
-    return dr.maximum(slabs(p, d, bmin, bmax)[1], 0.0)
-
-
 def sample_light(params, x, active=True):
     """(wo, dist, L) at world points ``x``: unit direction toward the light,
     distance to it (inf for directional) and Mitsuba's delivered radiance."""
@@ -66,12 +62,49 @@ def sample_light(params, x, active=True):
     return ds.d, dist, as_color3(spec)
 
 
+def medium_interval(params, p, d):
+    """(t_near, t_far): where the line ``p + t·d`` (``d`` need not be unit)
+    enters and leaves the medium's boundary; ``t_far < t_near`` for a line
+    that misses it.  The boundary is convex: an axis-aligned box (the slab
+    test), or the image of the cube ``[-1, 1]³`` or of the unit sphere
+    under an affine map (``MediumParams.to_local``: a rotated, scaled or
+    sheared box; a sphere) -- ``t`` is the same in the shape's own frame,
+    where the test is the slab test or a quadratic."""
+    med = params.medium
+    if med.to_local is None:
+        return slabs(p, d, point(med.bounds_min), point(med.bounds_max))
+    A, b = med.to_local[:, :3], med.to_local[:, 3]
+    rows = [vector(A[i]) for i in range(3)]
+    p, d = mi.Vector3f(p), mi.Vector3f(d)
+    p_l = mi.Vector3f(*(dr.dot(rows[i], p) + scalar(b[i]) for i in range(3)))
+    d_l = mi.Vector3f(*(dr.dot(rows[i], d) for i in range(3)))
+    if med.boundary == "box":
+        return slabs(p_l, d_l, mi.Vector3f(-1.0), mi.Vector3f(1.0))
+    # |p_l + t d_l|² = 1, in the stable form (no cancellation of -b ± √disc)
+    a = dr.squared_norm(d_l)
+    h = dr.dot(p_l, d_l)
+    c = dr.squared_norm(p_l) - 1.0
+    disc = h * h - a * c
+    q = -(h + dr.copysign(dr.sqrt(dr.maximum(disc, 0.0)), h))
+    t0 = dr.select(q != 0.0, c / q, 0.0)
+    t1 = dr.select(a > 0.0, q / dr.maximum(a, 1e-30), 0.0)
+    hit = disc >= 0.0
+    far = dr.largest(mi.Float)          # a miss: finite, so that differences stay finite
+    return (dr.select(hit, dr.minimum(t0, t1), far), dr.select(hit, dr.maximum(t0, t1), -far))
+
+
+def medium_exit_distance(params, p, d):
+    """Distance along unit ``d`` from ``p`` (inside the medium) to its
+    boundary (:func:`medium_interval`)."""
+    return dr.maximum(medium_interval(params, p, d)[1], 0.0)
+
+
 def segment_box(params, x, wo, dist):
     """(τ, t_in, t_out): the part ``[t_in, t_out]`` of the segment
-    ``x + s·wo``, ``s ∈ [0, dist]``, that lies inside the medium box, and its
-    length τ (the light-side path length in the medium)."""
-    t_near, t_far = slabs(x, wo, point(params.medium.bounds_min),
-                           point(params.medium.bounds_max))
+    ``x + s·wo``, ``s ∈ [0, dist]``, that lies inside the medium (its
+    boundary: :func:`medium_interval`), and its length τ (the light-side
+    path length in the medium)."""
+    t_near, t_far = medium_interval(params, x, wo)
     t_in = dr.clip(t_near, 0.0, dist)
     t_out = dr.maximum(dr.clip(t_far, 0.0, dist), t_in)
     return t_out - t_in, t_in, t_out

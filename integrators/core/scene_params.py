@@ -68,7 +68,14 @@ def _check_finite_nonneg(what: str, values: np.ndarray, fix: str) -> None:
 @dataclass(frozen=True, eq=False)
 class MediumParams:
     """Homogeneous medium (DESIGN §1): σt, σs = albedo·σt per unit length (RGB),
-    the phase function and the axis-aligned box that bounds the medium."""
+    the phase function and the convex shape that bounds the medium.
+
+    ``bounds_min``/``bounds_max``: the boundary's axis-aligned bounding box
+    (the boundary itself when ``to_local`` is None).  ``to_local`` (3×4,
+    ``u = A x + b``): the affine map taking the boundary to the cube
+    ``[-1, 1]³`` (``boundary = "box"``: a rotated, scaled or sheared cube)
+    or to the unit sphere (``boundary = "sphere"``); rays are clipped to it
+    by :func:`~integrators.core.light_transport.medium_interval`."""
     sigma_t: np.ndarray
     albedo: np.ndarray
     phase_kind: str
@@ -76,15 +83,27 @@ class MediumParams:
     bounds_max: np.ndarray
     phase: object = field(repr=False, default=None)
     medium: object = field(repr=False, default=None)
+    boundary: str = "box"
+    to_local: np.ndarray | None = None
 
     @property
     def sigma_s(self) -> np.ndarray:
         return self.albedo * self.sigma_t
 
+    @property
+    def axis_aligned(self) -> bool:
+        """Whether the boundary is an axis-aligned box (its bounds)."""
+        return self.to_local is None
+
     def contains(self, p, rel_eps=1e-6) -> bool:
+        p = np.asarray(p, dtype=np.float64)
+        if self.to_local is not None:
+            u = self.to_local[:, :3] @ p + self.to_local[:, 3]
+            if self.boundary == "sphere":
+                return bool(np.linalg.norm(u) < 1 + rel_eps)
+            return bool(np.all(np.abs(u) < 1 + rel_eps))
         ext = float(np.max(self.bounds_max - self.bounds_min))
         eps = rel_eps * ext
-        p = np.asarray(p, dtype=np.float64)
         return bool(np.all(p > self.bounds_min - eps) and np.all(p < self.bounds_max + eps))
 
 
@@ -165,6 +184,8 @@ class SceneParams:
             hi = self.medium.bounds_max + margin
             ilo = self.medium.bounds_min + margin
             ihi = self.medium.bounds_max - margin
+            if not self.medium.axis_aligned:    # the boundary crosses its box's inside
+                ilo, ihi = self.medium.bounds_max, self.medium.bounds_min
             near = []
             for shape in self.scene.shapes() if self.scene is not None else []:
                 bsdf = shape.bsdf()
@@ -277,9 +298,10 @@ def read_medium(scene, sensor) -> MediumParams:
                          "set albedo to a value in [0, 1].")
     phase = med.phase_function()
     kind = _check_phase(phase, med)
-    bmin, bmax = _read_boundary(scene, med)
+    bmin, bmax, boundary, to_local = _read_boundary(scene, med)
     return MediumParams(sigma_t=sigma_t, albedo=albedo, phase_kind=kind,
-                        bounds_min=bmin, bounds_max=bmax, phase=phase, medium=med)
+                        bounds_min=bmin, bounds_max=bmax, phase=phase, medium=med,
+                        boundary=boundary, to_local=to_local)
 
 
 def _check_phase(phase, med) -> str:
@@ -306,10 +328,15 @@ def _same(a, b) -> bool:
 
 
 def _read_boundary(scene, med):
+    """(bounds_min, bounds_max, boundary, to_local) of the one null-BSDF
+    shape whose interior is ``med`` (see :class:`MediumParams`): a ``cube``
+    (or a mesh whose vertices are the corners of a box) with any
+    ``to_world`` -- axis-aligned (``to_local`` None) or rotated, scaled,
+    sheared -- or a ``sphere``."""
     boundary = [s for s in scene.shapes() if _same(s.interior_medium(), med)]
-    fix = ("bound the medium with exactly one axis-aligned <shape type=\"cube\"> "
-           "(translate/scale only) with <bsdf type=\"null\"/> and "
-           "<ref name=\"interior\" id=\"...\"/>, enclosing the camera and the scene.")
+    fix = ("bound the medium with exactly one <shape type=\"cube\"> (any to_world: "
+           "translated, scaled, rotated) or <shape type=\"sphere\"> with <bsdf type=\"null\"/> "
+           "and <ref name=\"interior\" id=\"...\"/>.")
     if not boundary:
         raise ValueError(f"Medium {_name(med)} has no boundary shape: {fix}")
     if len(boundary) > 1:
@@ -325,16 +352,51 @@ def _read_boundary(scene, med):
     bmin, bmax = _vec(bbox.min), _vec(bbox.max)
     if not (np.all(np.isfinite(bmin)) and np.all(np.isfinite(bmax)) and np.all(bmax > bmin)):
         raise ValueError(f"Boundary {_name(shape)} has a degenerate bounding box: {fix}")
-    if shape.is_mesh():
-        pos = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
-        tol = 1e-4 * float(np.max(bmax - bmin))
-        on_corner = np.all((np.abs(pos - bmin) < tol) | (np.abs(pos - bmax) < tol), axis=1)
-        if not np.all(on_corner):
-            raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is not an "
-                             f"axis-aligned box: {fix}")
-    else:
-        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is not a box: {fix}")
-    return bmin, bmax
+    if shape.class_name() == "Sphere":
+        to_world = host_array(mi.traverse(shape)["to_world"].matrix).reshape(4, 4)
+        inverse = np.linalg.inv(to_world)
+        return bmin, bmax, "sphere", inverse[:3, :].copy()
+    if not shape.is_mesh():
+        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is a "
+                         f"{shape.class_name()}, not a box or a sphere: {fix}")
+    pos = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+    tol = 1e-4 * float(np.max(bmax - bmin))
+    if np.all(np.all((np.abs(pos - bmin) < tol) | (np.abs(pos - bmax) < tol), axis=1)):
+        return bmin, bmax, "box", None
+    to_local = _box_frame(pos, tol)
+    if to_local is None:
+        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is a mesh that is "
+                         f"not a box (a closed mesh boundary is not supported): {fix}")
+    return bmin, bmax, "box", to_local
+
+
+def _box_frame(pos: np.ndarray, tol: float) -> np.ndarray | None:
+    """The map ``u = A x + b`` taking a box's corners ``pos`` (vertices,
+    repeated) to the cube ``[-1, 1]³``, or None if the vertices are not the
+    8 corners of a parallelepiped."""
+    corners = []
+    for p in pos:
+        if all(np.linalg.norm(p - q) > tol for q in corners):
+            corners.append(p)
+        if len(corners) > 8:
+            return None
+    if len(corners) != 8:
+        return None
+    corners = np.array(corners)
+    v0, others = corners[0], corners[1:]
+    for i in range(7):
+        for j in range(i + 1, 7):
+            for k in range(j + 1, 7):
+                E = np.stack([others[i] - v0, others[j] - v0, others[k] - v0], axis=1)
+                if abs(np.linalg.det(E)) < tol ** 3:
+                    continue
+                combos = np.array([v0 + E @ np.array([a, b, c]) for a in (0, 1)
+                                   for b in (0, 1) for c in (0, 1)])
+                if all(np.min(np.linalg.norm(combos - q, axis=1)) < tol for q in corners):
+                    A = 2.0 * np.linalg.inv(E)
+                    centre = v0 + E @ np.full(3, 0.5)
+                    return np.concatenate([A, (-A @ centre)[:, None]], axis=1)
+    return None
 
 
 #: what a scene's emitters must be, in every refusal

@@ -144,7 +144,8 @@ def own_ray_visibility(params, cap: CameraCapture, queries: EpipolarQueries, q: 
     t, _ = ray_meeting_t(queries.frame, dr.gather(mi.Float, queries.beta, q), gamma)
     t_near = dr.gather(mi.Float, queries.t_near, q)
     t_end = t_near + dr.gather(mi.Float, cap.d, sample)
-    t = dr.clip(t, t_near, dr.maximum(t_end - eps * params.scene_extent, t_near))
+    # the margin opaque: the medium's extent moves in its last bits with the boundary
+    t = dr.clip(t, t_near, dr.maximum(t_end - scalar(eps * params.scene_extent), t_near))
     x = (dr.gather(mi.Point3f, cap.o, sample)
          + dr.gather(mi.Vector3f, cap.omega, sample) * (t - t_near))
     wo, dist, _ = sample_light(params, x)

@@ -45,7 +45,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.light_transport import color, phase_eval
-from ..core.opaque import floats, point, reciprocal, scalar
+from ..core.opaque import floats, point, reciprocal, scalar, vector
 
 
 #: |k·L| below which ∫ e^{-k s} ds uses its Taylor series
@@ -87,9 +87,22 @@ NO_EXIT = 1e30
 
 
 def box_path(params, o: mi.Point3f, omega: mi.Vector3f) -> BoxPath:
-    """τ(t) along rays ``o + t ω`` toward the directional light ``w_l``."""
+    """τ(t) along rays ``o + t ω`` toward the directional light ``w_l``.
+    A rotated or sheared box (``MediumParams.to_local``) is the cube
+    ``[-1, 1]³`` in its own frame, where the same per-axis exits hold (the
+    path length along the unit ``w_l`` is the parameter of the line, the
+    same in both frames)."""
     w = np.asarray(params.light.direction, dtype=np.float64)
     lo, hi = params.medium.bounds_min, params.medium.bounds_max
+    M = params.medium.to_local
+    if M is not None:
+        if params.medium.boundary != "box":
+            raise ValueError("box_path: the medium's boundary is not a box")
+        rows = [vector(M[i, :3]) for i in range(3)]
+        o = mi.Point3f(*(dr.dot(rows[i], mi.Vector3f(o)) + scalar(M[i, 3]) for i in range(3)))
+        omega = mi.Vector3f(*(dr.dot(rows[i], omega) for i in range(3)))
+        w = M[:, :3] @ w
+        lo, hi = -np.ones(3), np.ones(3)
     a, b = [], []
     for i in range(3):
         if abs(w[i]) < 1e-12:

@@ -31,7 +31,7 @@ from rectify import (BetaGrid, EpipolarFrame, Slices, grid_directions, per_slice
                      project_direction, slice_segments)
 
 from ..core.capture import first_surface
-from ..core.light_transport import box_exit_distance
+from ..core.light_transport import medium_exit_distance
 from ..core.opaque import floats, point, scalar, uints
 from ..epipolar.frame import choose_slices, epipolar_frame_of
 
@@ -112,8 +112,7 @@ def trace_samples(params, frame: EpipolarFrame, slices: Slices, grid: BetaGrid,
         ray, _ = params.sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
         ray.d = dr.normalize(ray.d)
         _, t_surf = first_surface(params.scene, ray)
-        t_exit = box_exit_distance(ray.o, ray.d, point(params.medium.bounds_min),
-                                   point(params.medium.bounds_max))
+        t_exit = medium_exit_distance(params, ray.o, ray.d)
         dr.scatter(o, ray.o, live)
         dr.scatter(omega, ray.d, live)
         dr.scatter(d, dr.minimum(t_surf, t_exit), live)

@@ -64,7 +64,8 @@ def frame_invariants(params) -> dict:
         "camera": np.concatenate([cam.origin, cam.forward, cam.x_axis, cam.y_axis,
                                   [cam.width, cam.height, cam.near_clip]]),
         "light": np.concatenate(lights),
-        "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max]
+        "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max,
+                                  np.ravel(med.to_local if med.to_local is not None else [])]
                                  + [np.ravel(np.array(ph[k], dtype=np.float64))
                                     for k in sorted(ph.keys()) if _numeric(ph[k])]),
     }

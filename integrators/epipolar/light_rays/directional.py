@@ -12,7 +12,7 @@ import numpy as np
 
 from rectify.coords import light_coords_to_world
 
-from ...core.light_transport import point, scalar, slabs, vector
+from ...core.light_transport import medium_interval, scalar, vector
 from ...core.opaque import opaque_unshared
 from ..queries import EpipolarQueries, row_alpha
 from .layout import EqualLightRays
@@ -82,7 +82,7 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
     ``[0, max γ_end]`` and h is each ray's own box exit; a point/spot
     light's rays share one lattice of angles instead
     (:func:`~integrators.epipolar.light_rays.local.local_light_ray_grid`)."""
-    gamma_max = row_gamma_end(queries, 1e-6 * params.scene_extent)
+    gamma_max = row_gamma_end(queries, scalar(1e-6 * params.scene_extent))
     auto = not d
     d = light_ray_count(params, d, float(dr.max(gamma_max)[0]))
     rays = with_box_exits(params, queries, LightRays(int(d), gamma_max, gamma_max / d))
@@ -184,5 +184,5 @@ def row_reference(params, h: mi.Float, s: mi.UInt32, n: int) -> mi.Float:
 def axial_exit(params, x, w):
     """(h, hits): axial coordinate where the line x + u·w leaves the medium
     box toward the light, and whether the line meets the box at all."""
-    t_near, t_far = slabs(x, w, point(params.medium.bounds_min), point(params.medium.bounds_max))
+    t_near, t_far = medium_interval(params, x, w)
     return t_far, t_far >= t_near

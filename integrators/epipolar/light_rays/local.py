@@ -11,7 +11,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.light_transport import point, scalar, slabs, vector
+from ...core.light_transport import medium_interval, point, scalar, vector
 from ..queries import EpipolarQueries
 from .directional import MIN_AUTO_LIGHT_RAYS, light_ray_count, row_gamma_end
 from .layout import EqualLightRays
@@ -236,8 +236,7 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
                           start, offset=m, d_count=count)
     s, gamma = rays.positions(0.5)
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
-    t_near, t_far = slabs(mi.Point3f(point(frame.light_position)), w,
-                           point(params.medium.bounds_min), point(params.medium.bounds_max))
+    t_near, t_far = medium_interval(params, mi.Point3f(point(frame.light_position)), w)
     rays = replace(rays, r_in=dr.select(t_far >= dr.maximum(t_near, 0.0),
                                         dr.maximum(t_near, 0.0), dr.inf))
     dr.eval(rays.gamma_max, rays.delta_gamma, rays.gamma_lo, rays.r_in, rays.offset, rays.d_count)

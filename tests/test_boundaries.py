@@ -1,0 +1,175 @@
+"""Fog volumes bounded by any convex boundary Mitsuba users write: a
+``cube`` with any ``to_world`` (rotated, scaled, sheared) or a ``sphere``.
+
+Oracles: a NumPy twin of the ray-boundary interval on random rays (misses,
+grazing and degenerate directions included); ``volpath`` (``max_depth=2``)
+within its noise for the exact marcher; the exact marcher for every other
+integrator."""
+from __future__ import annotations
+
+import warnings
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from episcatter.metrics import block_average, noise_relmse_from_variance, scale_free_relmse
+from integrators.core.light_transport import medium_interval
+from integrators.core.scene_params import SceneParams, _box_frame
+from tests.conftest import T, scene_dict
+
+
+METHODS = ["raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar"]
+INTERIOR = {"bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "medium"}}
+#: boundaries that clip the visible fog and the shafts (the camera at (0, 0.5, 3) inside)
+BOUNDARIES = {
+    "rotated box": {"type": "cube", **INTERIOR, "to_world": T().translate([0, 0.4, 1.2])
+                    .rotate([0.3, 1, 0.2], 35).scale([1.6, 1.2, 2.2])},
+    "sheared box": {"type": "cube", **INTERIOR, "to_world": mi.ScalarTransform4f(np.array(
+        [[1.8, 0.5, 0.0, 0.1], [0.0, 1.5, 0.4, 0.3], [0.3, 0.0, 2.4, 1.0], [0, 0, 0, 1]]))},
+    "sphere": {"type": "sphere", **INTERIOR, "center": [0, 0.3, 1.0], "radius": 2.2},
+}
+
+
+def scene_with(boundary, light="directional", res=(32, 24), **kw):
+    return mi.load_dict(scene_dict(light=light, res=res, box=BOUNDARIES[boundary], **kw))
+
+
+def interval_reference(to_local, kind, p, d):
+    """NumPy (float64): the line p + t d in the shape's frame against the
+    cube [-1, 1]^3 (slabs) or the unit sphere (quadratic); (inf, -inf) on a miss."""
+    A, b = to_local[:, :3], to_local[:, 3]
+    pl, dl = p @ A.T + b, d @ A.T
+    if kind == "box":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (-1 - pl) / dl, (1 - pl) / dl
+        lo = np.where(dl == 0, np.where(np.abs(pl) <= 1, -np.inf, np.inf), np.minimum(t0, t1))
+        hi = np.where(dl == 0, np.where(np.abs(pl) <= 1, np.inf, -np.inf), np.maximum(t0, t1))
+        return lo.max(1), hi.min(1)
+    a, h, c = (dl * dl).sum(1), (pl * dl).sum(1), (pl * pl).sum(1) - 1
+    disc = h * h - a * c
+    r = np.sqrt(np.maximum(disc, 0))
+    return (np.where(disc >= 0, (-h - r) / a, np.inf), np.where(disc >= 0, (-h + r) / a, -np.inf))
+
+
+@pytest.mark.parametrize("boundary", sorted(BOUNDARIES))
+def test_medium_interval_matches_its_numpy_twin(boundary):
+    params = SceneParams.from_scene(scene_with(boundary))
+    med = params.medium
+    rng = np.random.default_rng(7)
+    n = 4000
+    p = rng.uniform(-5, 5, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d[:200, 1] = 0.0                                  # directions in a coordinate plane
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    near, far = medium_interval(params, mi.Point3f(*p.T.astype(np.float32)),
+                                mi.Vector3f(*d.T.astype(np.float32)))
+    near, far = np.array(near, np.float64), np.array(far, np.float64)
+    ref_near, ref_far = interval_reference(med.to_local, med.boundary, p, d)
+    hit = ref_far > np.maximum(ref_near, -1e30) + 1e-3
+    clear_miss = ref_far < ref_near - 1e-3
+    assert hit.sum() > 500 and clear_miss.sum() > 500
+    np.testing.assert_allclose(near[hit], ref_near[hit], atol=2e-4)
+    np.testing.assert_allclose(far[hit], ref_far[hit], atol=2e-4)
+    assert np.all(far[clear_miss] < near[clear_miss])
+    assert np.all(np.isfinite(near) & np.isfinite(far))     # differences stay finite
+
+
+def test_box_frames_are_found_and_other_meshes_are_not():
+    M = np.array([[1.8, 0.5, 0.0, 0.1], [0.0, 1.5, 0.4, 0.3], [0.3, 0.0, 2.4, 1.0]])
+    cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    world = cube @ M[:, :3].T + M[:, 3]
+    to_local = _box_frame(np.repeat(world, 3, axis=0), 1e-6)
+    np.testing.assert_allclose(np.abs(world @ to_local[:, :3].T + to_local[:, 3]), 1.0,
+                               atol=1e-9)
+    octahedron = np.concatenate([np.eye(3), -np.eye(3)])
+    assert _box_frame(octahedron, 1e-6) is None
+    assert _box_frame(np.concatenate([world, [[5.0, 5.0, 5.0]]]), 1e-6) is None
+
+
+@pytest.mark.parametrize("boundary", ["rotated box", "sphere"])
+@pytest.mark.parametrize("light", ["directional", "point"])
+def test_exact_marcher_agrees_with_volpath_in_any_boundary(boundary, light):
+    scene = scene_with(boundary, light, res=(24, 18))
+    vp = mi.load_dict({"type": "volpath", "max_depth": 2})
+    chunks = [np.array(mi.render(scene, integrator=vp, spp=1024, seed=s)) for s in range(16)]
+    ref = np.mean(chunks, axis=0)
+    variance = np.var(chunks, axis=0, ddof=1) / len(chunks)
+    ours = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 256,
+                                  "samples_per_pixel": 256, "jitter": True})
+                    .render_layers(scene)["full"])
+    assert np.all(np.isfinite(ours))
+    assert abs(ours.mean() / ref.mean() - 1) < 0.01
+    err = scale_free_relmse(block_average(ours, 4), block_average(ref, 4))
+    assert err <= 2 * noise_relmse_from_variance(ref, variance, block=4)
+
+
+@pytest.mark.parametrize("light", ["directional", "point", "spot"])
+@pytest.mark.parametrize("boundary", sorted(BOUNDARIES))
+@pytest.mark.parametrize("method", METHODS)
+def test_every_integrator_in_any_boundary(method, boundary, light):
+    scene = scene_with(boundary, light)
+    ref = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 1024})
+                   .render_layers(scene, spp=1)["scattering"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        img = np.array(mi.load_dict({"type": method}).render_layers(scene, spp=1)["scattering"])
+    assert ref.max() > 0 and np.all(np.isfinite(img))
+    assert scale_free_relmse(img, ref) < 1e-4
+
+
+def test_the_boundary_clips_the_fog():
+    """The same scene in a sphere and in its bounding box differ (shorter
+    view and light paths in the sphere): the boundary, not its bounding
+    box, bounds the fog."""
+    sphere = scene_with("sphere")
+    lo, hi = (SceneParams.from_scene(sphere).medium.bounds_min,
+              SceneParams.from_scene(sphere).medium.bounds_max)
+    box = mi.load_dict(scene_dict(res=(32, 24), box={
+        "type": "cube", **INTERIOR,
+        "to_world": T().translate(((lo + hi) / 2).tolist()).scale(((hi - lo) / 2).tolist())}))
+    integ = mi.load_dict({"type": "raymarch", "visibility": "exact"})
+    a = np.array(integ.render_layers(sphere, spp=1)["scattering"])
+    b = np.array(integ.render_layers(box, spp=1)["scattering"])
+    assert abs(a.mean() / b.mean() - 1) > 0.05
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_camera_outside_a_sphere(method):
+    d = scene_dict(res=(24, 18), box={"type": "sphere", **INTERIOR, "center": [0, 0, 0],
+                                      "radius": 1.3})
+    del d["sensor"]["medium"]
+    scene = mi.load_dict(d)
+    assert SceneParams.from_scene(scene).camera_outside
+    ref = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 1024})
+                   .render_layers(scene, spp=1)["scattering"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        img = np.array(mi.load_dict({"type": method}).render_layers(scene, spp=1)["scattering"])
+    assert ref.max() > 0 and scale_free_relmse(img, ref) < 1e-4
+
+
+def test_a_sun_in_a_sphere_marches_minmax_and_says_so():
+    with pytest.warns(UserWarning, match="sphere-bounded"):
+        mi.load_dict({"type": "minmax_epipolar"}).render_layers(scene_with("sphere"), spp=1)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_moving_the_boundary_compiles_nothing(method):
+    """The boundary's frame and the medium's extent (margins scale with
+    it) enter the kernels as opaque values."""
+    from episcatter.kernels import kernel_log, literal_changes
+
+    integ = mi.load_dict({"type": method})
+    scene = scene_with("rotated box")
+    with kernel_log() as first:
+        integ.render_layers(scene, spp=1)
+    params = mi.traverse(scene)
+    key = "box.vertex_positions"
+    v = dr.unravel(mi.Point3f, params[key])
+    params[key] = dr.ravel(v + mi.Vector3f(0.02, -0.01, 0.03))
+    params.update()
+    with kernel_log() as log:
+        integ.render_layers(scene, spp=1)
+    assert log.compiled == 0, literal_changes(first, log)
