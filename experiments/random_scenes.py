@@ -4,8 +4,8 @@ Mitsuba scene dicts.
 Each scene is a homogeneous medium box (an axis-aligned null-BSDF ``cube``
 of half-size ``B``) around a perspective camera, with random box-shaped and
 spherical occluders, one light (``directional``, ``point``, ``spot`` with or
-without a projected checkerboard ``texture``; 1-6 of them in the extended
-set), an isotropic or
+without a projected checkerboard ``texture``; 1-6 of them, a rotated box
+or a sphere as the boundary and the camera outside it in the extended set), an isotropic or
 Henyey-Greenstein phase function, σt over six decades of optical depth
 (σt·B from 1e-3 to 1e3) and a small image (odd and even sizes down to 1x1).
 No integrator is set: pass the one to test to ``mi.render``.
@@ -18,7 +18,8 @@ API
 ``scene_set(n, first_seed=0, extended=False) -> list[SceneSpec]``
     ``n`` consecutive seeds; the case classes recur every
     ``len(KIND_CYCLE)`` seeds.  ``extended``: each scene with 1-6 lights of
-    mixed kinds (:func:`with_more_lights`; the scene is otherwise the
+    mixed kinds, a box, rotated box or sphere boundary, the camera inside
+    or outside it (:func:`extended_scene`; the scene is otherwise the
     seed's own).
 ``SceneSpec``
     Plain data (JSON-able via :meth:`SceneSpec.as_json`): ``.scene_dict()``
@@ -103,13 +104,32 @@ class SceneSpec:
     g: float | None                       # HG asymmetry; None = isotropic
     light: dict                           # type + plain parameters (see _light_dict)
     occluders: list[dict] = field(default_factory=list)   # {"shape": "box"/"sphere", ...}
-    #: lights besides ``light`` (the extended generator, :func:`with_more_lights`)
+    #: lights besides ``light`` (the extended generator, :func:`extended_scene`)
     more_lights: list[dict] = field(default_factory=list)
+    #: the medium's boundary: ``box`` (the cube [-B, B]³), ``rotated_box``
+    #: (a cube of half-size √3·B, turned: it holds that cube) or ``sphere``
+    #: (radius √3·B, holding the cube)
+    boundary: str = "box"
+    #: rotation of ``rotated_box``: (axis, degrees)
+    boundary_rotation: tuple = ((0.0, 1.0, 0.0), 0.0)
+    #: the camera outside the boundary, looking into the fog (no medium on
+    #: the sensor)
+    camera_outside: bool = False
+
+    @property
+    def features(self) -> list[str]:
+        """What the extended generator changed: ``lights``, ``rotated_box``,
+        ``sphere``, ``camera_outside``."""
+        return ((["lights"] if self.more_lights else [])
+                + ([self.boundary] if self.boundary != "box" else [])
+                + (["camera_outside"] if self.camera_outside else []))
 
     @property
     def name(self) -> str:
         more = f" +{len(self.more_lights)} lights" if self.more_lights else ""
-        return (f"seed {self.seed} ({self.kind}, {self.light['type']}{more}, "
+        shape = "" if self.boundary == "box" else f" {self.boundary}"
+        out = " outside" if self.camera_outside else ""
+        return (f"seed {self.seed} ({self.kind}, {self.light['type']}{more}{shape}{out}, "
                 f"{self.res[0]}x{self.res[1]})")
 
     @property
@@ -146,16 +166,32 @@ class SceneSpec:
                        # like-for-like convention (the integrators honour it)
                        "sampler": {"type": "independent", "sample_count": 1},
                        "medium": {"type": "ref", "id": "medium"}},
-            "box": {"type": "cube", "to_world": T().scale(B), "bsdf": {"type": "null"},
-                    "interior": {"type": "ref", "id": "medium"}},
+            "box": self._boundary_dict(),
             "light": _light_dict(self.light),
         }
         for i, light in enumerate(self.more_lights):
             d[f"light_{i + 2}"] = _light_dict(light)
+        if self.camera_outside:
+            del d["sensor"]["medium"]
         if occluders:
             for i, o in enumerate(self.occluders):
                 d[f"occluder_{i}"] = _occluder_dict(o)
         return d
+
+    def _boundary_dict(self) -> dict:
+        import mitsuba as mi
+
+        T = mi.ScalarTransform4f
+        B = self.box_half
+        inside = {"bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "medium"}}
+        if self.boundary == "sphere":
+            return {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": math.sqrt(3) * B,
+                    **inside}
+        if self.boundary == "rotated_box":
+            axis, deg = self.boundary_rotation
+            return {"type": "cube", "to_world": T().rotate(list(axis), deg).scale(math.sqrt(3) * B),
+                    **inside}
+        return {"type": "cube", "to_world": T().scale(B), **inside}
 
     def load(self, occluders: bool = True):
         import mitsuba as mi
@@ -525,21 +561,38 @@ _KIND_BUILDERS = {"random": _random_case, "sun_axis": _sun_axis, "light_at_eye":
 MAX_LIGHTS = 6
 
 
-def with_more_lights(spec: SceneSpec) -> SceneSpec:
-    """The extended generator's scene of ``spec``: 1-:data:`MAX_LIGHTS`
-    lights of mixed kinds (``spec``'s own plus 0-5 random ones, drawn from
-    a generator of their own so that the rest of the scene is ``spec``'s).
-    An ``enclosed`` scene keeps its one light (its black reference measures
-    leaks)."""
+#: how often the extended generator draws each boundary, and the camera outside
+BOUNDARY_ODDS = {"box": 0.5, "rotated_box": 0.25, "sphere": 0.25}
+OUTSIDE_ODDS = 0.25
+
+
+def extended_scene(spec: SceneSpec) -> SceneSpec:
+    """The extended generator's scene of ``spec``, drawn from a generator
+    of its own (the rest of the scene is ``spec``'s): 1-:data:`MAX_LIGHTS`
+    lights of mixed kinds (``spec``'s own plus 0-5 random ones), the
+    boundary a box, a rotated box or a sphere (:data:`BOUNDARY_ODDS`; each
+    holds the cube [-B, B]³, so the occluders stay inside), and the camera
+    outside it (:data:`OUTSIDE_ODDS`: moved back 3.5·B along its view, out
+    of every boundary, still looking at the fog).  An ``enclosed`` scene is
+    left as it is (its black reference measures leaks)."""
     if spec.kind == "enclosed":
         return spec
     rng = np.random.default_rng([35, spec.seed])
     more = [_random_light(rng, spec.box_half) for _ in range(int(rng.integers(0, MAX_LIGHTS)))]
-    return replace(spec, more_lights=more)
+    boundary = str(rng.choice(list(BOUNDARY_ODDS), p=list(BOUNDARY_ODDS.values())))
+    rotation = (tuple(float(x) for x in _random_unit(rng)), float(rng.uniform(10, 80)))
+    outside = bool(rng.random() < OUTSIDE_ODDS)
+    out = replace(spec, more_lights=more, boundary=boundary, boundary_rotation=rotation,
+                  camera_outside=outside)
+    if outside:
+        eye, target = np.asarray(spec.origin), np.asarray(spec.target)
+        back = _unit(target - eye) * 3.5 * spec.box_half
+        out = replace(out, origin=(eye - back).tolist(), target=(target - back).tolist())
+    return out
 
 
 def scene_set(n: int, first_seed: int = 0, extended: bool = False) -> list[SceneSpec]:
     """Scenes of seeds ``first_seed .. first_seed + n - 1`` (``extended``:
-    through :func:`with_more_lights`)."""
+    through :func:`extended_scene`)."""
     specs = [random_scene(s) for s in range(first_seed, first_seed + n)]
-    return [with_more_lights(x) for x in specs] if extended else specs
+    return [extended_scene(x) for x in specs] if extended else specs

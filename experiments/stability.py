@@ -434,7 +434,8 @@ def run_random_scene(spec, methods=RANDOM_METHODS, reference_steps: int = c.REFE
     exact = {**exact_props(reference_steps), "output": "scattering"}
     ref, status = render(scene, "raymarch", exact)
     base = {"seed": spec.seed, "kind": spec.kind, "light": spec.light["type"],
-            "lights": len(spec.lights),
+            "lights": len(spec.lights), "boundary": spec.boundary,
+            "camera_outside": spec.camera_outside, "features": "+".join(spec.features) or "-",
             "res": f"{spec.res[0]}x{spec.res[1]}", "sigma_t_B": spec.sigma_t * spec.box_half,
             "occluders": len(spec.occluders)}
     if ref is None:
@@ -494,8 +495,22 @@ def random_summary(rows: list[dict], methods=RANDOM_METHODS) -> dict:
                               "relmse": distribution(r["relmse"] for r in lit
                                                      if r.get("lights", 1) == n)}
                           for n in sorted({r.get("lights", 1) for r in mine})},
+            "by_feature": {f: {"scenes": len(rs), "bounded": sum(bool(r.get("bounded")) for r in rs),
+                               "relmse": distribution(r["relmse"] for r in rs
+                                                      if r.get("ref_class") == "lit")}
+                           for f in FEATURES
+                           for rs in [[r for r in mine if _has_feature(r, f)]] if rs},
         }
     return out
+
+
+#: the extended generator's features (experiments.random_scenes.SceneSpec.features)
+FEATURES = ("none", "lights", "rotated_box", "sphere", "camera_outside")
+
+
+def _has_feature(row: dict, feature: str) -> bool:
+    have = [f for f in row.get("features", "-").split("+") if f != "-"]
+    return not have if feature == "none" else feature in have
 
 
 def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
@@ -513,9 +528,16 @@ def random_text(summary: dict, n: int, first_seed: int, steps: int) -> str:
                      c.fmt(s["leak"]["max"]),
                      ", ".join(f"{k} {v}" for k, v in s["unbounded_by_kind"].items()) or "-"])
     parts = []
+    if any(len(s["by_feature"]) > 1 for s in summary.values()):
+        feats = [f for f in FEATURES if any(f in s["by_feature"] for s in summary.values())]
+        parts += ["Per feature of the extended generator (a scene may have several): bounded / "
+                  "scenes (relMSE median / max, lit references).",
+                  c.markdown_table(["method"] + feats,
+                                   [[kind] + [_by_lights_cell(s["by_feature"].get(f)) for f in feats]
+                                    for kind, s in summary.items()])]
     if any(len(s["by_lights"]) > 1 for s in summary.values()):
         counts = sorted({k for s in summary.values() for k in s["by_lights"]})
-        parts = ["Per number of lights: bounded / scenes (relMSE median / max, lit references).",
+        parts += ["Per number of lights: bounded / scenes (relMSE median / max, lit references).",
                  c.markdown_table(["method"] + [f"{k} light{'s' if k > 1 else ''}" for k in counts],
                                   [[kind] + [_by_lights_cell(s["by_lights"].get(k)) for k in counts]
                                    for kind, s in summary.items()])]
@@ -541,7 +563,7 @@ def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
                steps: int = c.REFERENCE_STEPS, tag: str = "random",
                params: dict | None = None, extended: bool = False) -> list[dict]:
     """The randomised set: ``n`` scenes from ``first_seed`` (``extended``:
-    the generator's 1-6-light scenes), each method at its defaults plus
+    the extended generator's scenes), each method at its defaults plus
     ``params[method]``; writes ``<tag>.csv``, ``<tag>.json`` (settings,
     rows, summary) and ``<tag>.md``."""
     from . import random_scenes
@@ -573,8 +595,8 @@ def run_random(n: int, first_seed: int, out, methods=RANDOM_METHODS,
 
 
 
-LOG_LINE = re.compile(r"^\[\d+/\d+\] seed (\d+) \((\w+), (\w+)(?: \+\d+ lights)?, (\d+x\d+)\): "
-                      r"(.*)$")
+LOG_LINE = re.compile(r"^\[\d+/\d+\] seed (\d+) \((\w+), (\w+)(?: \+\d+ lights)?(?: \w+)?"
+                      r"(?: outside)?, (\d+x\d+)\): (.*)$")
 LOG_METHOD = re.compile(r"(\w+) (ok|UNBOUNDED) relMSE (\S+) max/peak (\S+) mean (\S+) leak (\S+)")
 
 
@@ -689,7 +711,8 @@ def main(argv=None):
     p.add_argument("--tag", default="random", help="file stem of --random's outputs")
     p.add_argument("--extended", action="store_true",
                    help="--random draws the extended generator's scenes (1-6 lights of mixed "
-                        "kinds)")
+                        "kinds, box / rotated box / sphere boundaries, the camera inside or "
+                        "outside)")
     p.add_argument("--methods", nargs="+", default=list(RANDOM_METHODS),
                    help="integrators of --random (default: all three)")
     p.add_argument("--set", action="append", default=[], metavar="METHOD:KEY=VALUE",
