@@ -353,7 +353,8 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     def marches_every_pixel(self, params, layout) -> bool:
         """Whether every pixel is marched on its own: the camera outside the
         medium (the slices' samples start at the eye), a directional light
-        in a sphere-bounded medium (no piecewise-linear light-side path), a
+        in a sphere or a convex mesh (no light-side path of three linear
+        pieces), a
         point or spot light beyond the section table's range (:func:`beyond_table_range`), or
         the slices' samples on screen (counted on the host from the
         layout) at least ``SMALL_IMAGE_SAMPLES`` per pixel.  On
@@ -370,12 +371,12 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
                 "cost); put the camera inside the fog volume for the epipolar speed-up.",
                 stacklevel=3)
             return True
-        if params.light.kind == "directional" and params.medium.boundary == "sphere":
+        if params.light.kind == "directional" and params.medium.boundary != "box":
             warnings.warn(
-                "minmax_epipolar: a sun in a sphere-bounded medium has no piecewise-linear "
-                "light-side path, so every pixel is ray-marched (correct, at a ray marcher's "
-                "cost); bound the fog with a <shape type=\"cube\"> for the epipolar speed-up.",
-                stacklevel=3)
+                f"minmax_epipolar: a sun in a {params.medium.boundary}-bounded medium has no "
+                "light-side path of three linear pieces, so every pixel is ray-marched "
+                "(correct, at a ray marcher's cost); bound the fog with a <shape type=\"cube\"> "
+                "for the epipolar speed-up.", stacklevel=3)
             return True
         if beyond_table_range(params):
             return True

@@ -173,3 +173,115 @@ def test_moving_the_boundary_compiles_nothing(method):
     with kernel_log() as log:
         integ.render_layers(scene, spp=1)
     assert log.compiled == 0, literal_changes(first, log)
+
+
+# -- closed convex meshes -----------------------------------------------------------
+
+def write_ply(path, vertices, faces) -> str:
+    """An ASCII PLY file of a triangle mesh."""
+    lines = ["ply", "format ascii 1.0", f"element vertex {len(vertices)}",
+             "property float x", "property float y", "property float z",
+             f"element face {len(faces)}", "property list uchar int vertex_indices",
+             "end_header"]
+    lines += [" ".join(f"{x:.9g}" for x in v) for v in vertices]
+    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def prism(sides: int, radius: float, y0: float, y1: float, centre=(0.0, 0.0)):
+    """A closed prism with a regular ``sides``-gon as its base (outward winding)."""
+    a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    ring = np.stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a)], 1)
+    v = [[x, y0, z] for x, z in ring] + [[x, y1, z] for x, z in ring]
+    f = []
+    for i in range(sides):
+        j = (i + 1) % sides
+        f += [[i, sides + j, j], [i, sides + i, sides + j]]
+    for i in range(1, sides - 1):
+        f += [[0, i, i + 1], [sides, sides + i + 1, sides + i]]
+    return np.array(v), np.array(f)
+
+
+def mesh_scene(tmp_path, vertices, faces, light="directional", res=(32, 24)):
+    ply = write_ply(tmp_path / "fog.ply", vertices, faces)
+    return mi.load_dict(scene_dict(light=light, res=res,
+                                   box={"type": "ply", "filename": ply, **INTERIOR}))
+
+
+def test_a_convex_mesh_is_read_as_its_face_planes(tmp_path):
+    params = SceneParams.from_scene(mesh_scene(tmp_path, *prism(6, 4.0, -2.0, 3.0)))
+    assert params.medium.boundary == "convex" and len(params.medium.planes) == 8
+    rng = np.random.default_rng(3)
+    p, d = rng.uniform(-5, 5, (2000, 3)), rng.normal(size=(2000, 3))
+    near, far = (np.array(x, np.float64) for x in medium_interval(
+        params, mi.Point3f(*p.T.astype(np.float32)), mi.Vector3f(*d.T.astype(np.float32))))
+    # the oracle: dense points along each line, inside where every n.x <= c
+    t = np.linspace(-20, 20, 8001)
+    x = p[:, None, :] + t[None, :, None] * d[:, None, :]
+    P = params.medium.planes
+    excess = np.max(x @ P[:, :3].T - P[:, 3], axis=2)      # > 0: outside some face
+    inside = excess <= 1e-9
+    hit = inside.any(1)
+    first = t[np.argmax(inside, 1)]
+    last = t[len(t) - 1 - np.argmax(inside[:, ::-1], 1)]
+    step = (t[1] - t[0]) * 1.01
+    seen = hit & (first > t[0]) & (last < t[-1])          # both ends inside the oracle's range
+    assert seen.sum() > 300 and (~hit).sum() > 300
+    np.testing.assert_allclose(near[seen], first[seen], atol=step)
+    np.testing.assert_allclose(far[seen], last[seen], atol=step)
+    wide = excess.min(1) > 0.5                              # misses by a margin
+    assert wide.sum() > 300 and np.all(far[wide] < near[wide])
+
+
+@pytest.mark.parametrize("light", ["directional", "point", "spot"])
+@pytest.mark.parametrize("method", METHODS)
+def test_every_integrator_in_a_convex_mesh(tmp_path, method, light):
+    scene = mesh_scene(tmp_path, *prism(6, 3.0, -1.5, 2.5, centre=(0.0, 0.8)), light=light)
+    ref = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 1024})
+                   .render_layers(scene, spp=1)["scattering"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        img = np.array(mi.load_dict({"type": method}).render_layers(scene, spp=1)["scattering"])
+    assert ref.max() > 0 and np.all(np.isfinite(img))
+    assert scale_free_relmse(img, ref) < 1e-4
+
+
+def test_exact_marcher_in_a_convex_mesh_agrees_with_volpath(tmp_path):
+    scene = mesh_scene(tmp_path, *prism(6, 3.0, -1.5, 2.5, centre=(0.0, 0.8)), light="point",
+                       res=(24, 18))
+    vp = mi.load_dict({"type": "volpath", "max_depth": 2})
+    chunks = [np.array(mi.render(scene, integrator=vp, spp=1024, seed=s)) for s in range(16)]
+    ref = np.mean(chunks, axis=0)
+    variance = np.var(chunks, axis=0, ddof=1) / len(chunks)
+    ours = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 256,
+                                  "samples_per_pixel": 256, "jitter": True})
+                    .render_layers(scene)["full"])
+    assert abs(ours.mean() / ref.mean() - 1) < 0.01
+    err = scale_free_relmse(block_average(ours, 4), block_average(ref, 4))
+    assert err <= 2 * noise_relmse_from_variance(ref, variance, block=4)
+
+
+def test_non_convex_and_open_meshes_are_refused_with_the_reason(tmp_path):
+    v, f = prism(6, 4.0, -2.0, 3.0)
+    with pytest.raises(ValueError, match="not closed"):
+        SceneParams.from_scene(mesh_scene(tmp_path, v, f[:-2]))
+    mixed = f.copy()
+    mixed[0] = mixed[0, ::-1]
+    with pytest.raises(ValueError, match="not wound consistently"):
+        SceneParams.from_scene(mesh_scene(tmp_path, v, mixed))
+    with pytest.raises(ValueError, match="normals point inward"):
+        SceneParams.from_scene(mesh_scene(tmp_path, v, f[:, ::-1]))
+    # an L-shaped prism (outward winding): a dent
+    v = np.array([[-3, -2, -3], [3, -2, -3], [3, -2, 0], [0, -2, 0], [0, -2, 3], [-3, -2, 3]],
+                 float)
+    v = np.concatenate([v, v + [0, 5, 0]])
+    n = 6
+    f = []
+    for i in range(n):
+        j = (i + 1) % n
+        f += [[i, n + j, j], [i, n + i, n + j]]
+    f += [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]]
+    f += [[n, n + 2, n + 1], [n, n + 3, n + 2], [n, n + 4, n + 3], [n, n + 5, n + 4]]
+    with pytest.raises(ValueError, match="not convex"):
+        SceneParams.from_scene(mesh_scene(tmp_path, v, np.array(f)))

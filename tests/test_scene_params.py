@@ -105,7 +105,7 @@ CASES = {
                                      "p1": [0, 4, 0], "bsdf": {"type": "null"},
                                      "interior": {"type": "ref", "id": "medium"}}),
                             "Cylinder, not a box or a sphere"),
-    "camera outside the medium": (bad(box_scale=2.0), "outside the medium box"),
+    "camera outside the medium": (bad(box_scale=2.0), "outside the boundary of the medium"),
     "HG g out of range": (bad(phase={"type": "hg", "g": math.nan}), "g"),
 }
 

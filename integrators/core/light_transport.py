@@ -66,11 +66,13 @@ def medium_interval(params, p, d):
     """(t_near, t_far): where the line ``p + t·d`` (``d`` need not be unit)
     enters and leaves the medium's boundary; ``t_far < t_near`` for a line
     that misses it.  The boundary is convex: an axis-aligned box (the slab
-    test), or the image of the cube ``[-1, 1]³`` or of the unit sphere
-    under an affine map (``MediumParams.to_local``: a rotated, scaled or
+    test), a closed convex mesh (its face planes' half-spaces), or the image
+    of the cube ``[-1, 1]³`` or of the unit sphere under an affine map (``MediumParams.to_local``: a rotated, scaled or
     sheared box; a sphere) -- ``t`` is the same in the shape's own frame,
     where the test is the slab test or a quadratic."""
     med = params.medium
+    if med.planes is not None:
+        return _convex_interval(med.planes, p, d)
     if med.to_local is None:
         return slabs(p, d, point(med.bounds_min), point(med.bounds_max))
     A, b = med.to_local[:, :3], med.to_local[:, 3]
@@ -91,6 +93,23 @@ def medium_interval(params, p, d):
     hit = disc >= 0.0
     far = dr.largest(mi.Float)          # a miss: finite, so that differences stay finite
     return (dr.select(hit, dr.minimum(t0, t1), far), dr.select(hit, dr.maximum(t0, t1), -far))
+
+
+def _convex_interval(planes, p, d):
+    """(t_near, t_far) of the line ``p + t·d`` against the half-spaces
+    ``n·x <= c`` (rows of ``planes``, opaque): the latest entry and the
+    earliest exit; a line parallel to a face and outside it misses."""
+    far = dr.largest(mi.Float)
+    p, d = mi.Vector3f(p), mi.Vector3f(d)
+    t_near, t_far = mi.Float(-far), mi.Float(far)
+    for row in planes:
+        n = vector(row[:3])
+        den, num = dr.dot(n, d), scalar(row[3]) - dr.dot(n, p)
+        t = num / dr.select(den == 0.0, 1.0, den)
+        t_near = dr.select(den < 0.0, dr.maximum(t_near, t), t_near)
+        t_far = dr.select(den > 0.0, dr.minimum(t_far, t), t_far)
+        t_far = dr.select((den == 0.0) & (num < 0.0), -far, t_far)
+    return dr.select(t_far >= t_near, t_near, far), t_far
 
 
 def medium_exit_distance(params, p, d):

@@ -74,8 +74,10 @@ class MediumParams:
     (the boundary itself when ``to_local`` is None).  ``to_local`` (3×4,
     ``u = A x + b``): the affine map taking the boundary to the cube
     ``[-1, 1]³`` (``boundary = "box"``: a rotated, scaled or sheared cube)
-    or to the unit sphere (``boundary = "sphere"``); rays are clipped to it
-    by :func:`~integrators.core.light_transport.medium_interval`."""
+    or to the unit sphere (``boundary = "sphere"``); ``planes``: the face
+    planes of a closed convex mesh (``boundary = "convex"``).  Rays are
+    clipped to it by
+    :func:`~integrators.core.light_transport.medium_interval`."""
     sigma_t: np.ndarray
     albedo: np.ndarray
     phase_kind: str
@@ -85,6 +87,9 @@ class MediumParams:
     medium: object = field(repr=False, default=None)
     boundary: str = "box"
     to_local: np.ndarray | None = None
+    #: ``boundary = "convex"``: the closed convex mesh's face planes (k×4,
+    #: outward unit normal n and offset c: inside where n·x <= c)
+    planes: np.ndarray | None = None
 
     @property
     def sigma_s(self) -> np.ndarray:
@@ -93,10 +98,13 @@ class MediumParams:
     @property
     def axis_aligned(self) -> bool:
         """Whether the boundary is an axis-aligned box (its bounds)."""
-        return self.to_local is None
+        return self.to_local is None and self.planes is None
 
     def contains(self, p, rel_eps=1e-6) -> bool:
         p = np.asarray(p, dtype=np.float64)
+        if self.planes is not None:
+            ext = float(np.max(self.bounds_max - self.bounds_min))
+            return bool(np.all(self.planes[:, :3] @ p <= self.planes[:, 3] + rel_eps * ext))
         if self.to_local is not None:
             u = self.to_local[:, :3] @ p + self.to_local[:, 3]
             if self.boundary == "sphere":
@@ -214,11 +222,11 @@ class SceneParams:
         inside = medium.contains(camera.origin)
         if sensor.get_medium() is not None and not inside:
             raise ValueError(
-                f"The camera at {camera.origin.tolist()} lies outside the medium box "
-                f"[{medium.bounds_min.tolist()}, {medium.bounds_max.tolist()}] although "
-                "the medium is attached to the sensor: enlarge the boundary cube so it "
-                "encloses the camera, or -- to look at the fog from outside -- remove the "
-                "medium <ref> from the <sensor>.")
+                f"The camera at {camera.origin.tolist()} lies outside the boundary of the "
+                f"medium (bounding box [{medium.bounds_min.tolist()}, "
+                f"{medium.bounds_max.tolist()}]) although the medium is attached to the "
+                "sensor: enlarge the boundary so it encloses the camera, or -- to look at the "
+                "fog from outside -- remove the medium <ref> from the <sensor>.")
         if sensor.get_medium() is None and inside:
             raise ValueError(
                 f"The camera at {camera.origin.tolist()} lies inside the boundary of medium "
@@ -298,10 +306,10 @@ def read_medium(scene, sensor) -> MediumParams:
                          "set albedo to a value in [0, 1].")
     phase = med.phase_function()
     kind = _check_phase(phase, med)
-    bmin, bmax, boundary, to_local = _read_boundary(scene, med)
+    bmin, bmax, boundary, to_local, planes = _read_boundary(scene, med)
     return MediumParams(sigma_t=sigma_t, albedo=albedo, phase_kind=kind,
                         bounds_min=bmin, bounds_max=bmax, phase=phase, medium=med,
-                        boundary=boundary, to_local=to_local)
+                        boundary=boundary, to_local=to_local, planes=planes)
 
 
 def _check_phase(phase, med) -> str:
@@ -335,8 +343,9 @@ def _read_boundary(scene, med):
     sheared -- or a ``sphere``."""
     boundary = [s for s in scene.shapes() if _same(s.interior_medium(), med)]
     fix = ("bound the medium with exactly one <shape type=\"cube\"> (any to_world: "
-           "translated, scaled, rotated) or <shape type=\"sphere\"> with <bsdf type=\"null\"/> "
-           "and <ref name=\"interior\" id=\"...\"/>.")
+           "translated, scaled, rotated), <shape type=\"sphere\"> or closed convex mesh "
+           f"(at most {MAX_PLANES} face planes) with <bsdf type=\"null\"/> and "
+           "<ref name=\"interior\" id=\"...\"/>.")
     if not boundary:
         raise ValueError(f"Medium {_name(med)} has no boundary shape: {fix}")
     if len(boundary) > 1:
@@ -355,19 +364,71 @@ def _read_boundary(scene, med):
     if shape.class_name() == "Sphere":
         to_world = host_array(mi.traverse(shape)["to_world"].matrix).reshape(4, 4)
         inverse = np.linalg.inv(to_world)
-        return bmin, bmax, "sphere", inverse[:3, :].copy()
+        return bmin, bmax, "sphere", inverse[:3, :].copy(), None
     if not shape.is_mesh():
         raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is a "
-                         f"{shape.class_name()}, not a box or a sphere: {fix}")
-    pos = np.array(mi.traverse(shape)["vertex_positions"], dtype=np.float64).reshape(-1, 3)
+                         f"{shape.class_name()}, not a box, a sphere or a closed convex "
+                         f"mesh: {fix}")
+    params = mi.traverse(shape)
+    pos = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
     tol = 1e-4 * float(np.max(bmax - bmin))
     if np.all(np.all((np.abs(pos - bmin) < tol) | (np.abs(pos - bmax) < tol), axis=1)):
-        return bmin, bmax, "box", None
+        return bmin, bmax, "box", None, None
     to_local = _box_frame(pos, tol)
-    if to_local is None:
-        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is a mesh that is "
-                         f"not a box (a closed mesh boundary is not supported): {fix}")
-    return bmin, bmax, "box", to_local
+    if to_local is not None:
+        return bmin, bmax, "box", to_local, None
+    faces = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
+    planes, why = convex_planes(pos, faces, tol)
+    if planes is None:
+        raise ValueError(f"Boundary {_name(shape)} of medium {_name(med)} is a mesh that "
+                         f"{why}: {fix}")
+    return bmin, bmax, "convex", None, planes
+
+
+#: most distinct face planes of a convex mesh boundary (each is a term of
+#: every ray-boundary test)
+MAX_PLANES = 32
+
+
+def convex_planes(pos: np.ndarray, faces: np.ndarray, tol: float):
+    """(planes, None) of a closed, consistently and outward wound, convex
+    triangle mesh -- its distinct face planes (k×4: outward unit normal,
+    offset), at most :data:`MAX_PLANES` -- or (None, why not)."""
+    # vertices may be split (per-face normals, uv seams): weld them first
+    weld = {}
+    keys = np.round(pos / max(tol, 1e-12)).astype(np.int64)
+    ids = np.array([weld.setdefault(tuple(k), len(weld)) for k in keys])
+    directed = {}
+    for f in ids[faces]:
+        for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            if e[0] != e[1]:
+                directed[e] = directed.get(e, 0) + 1
+    if not directed or any(n != 1 or directed.get((b, a)) != 1 for (a, b), n in directed.items()):
+        return None, ("is not closed, or its faces are not wound consistently (every edge "
+                      "must join two faces that run it in opposite directions)")
+    tri = pos[faces]
+    volume = float(np.sum(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])))) / 6
+    if volume < 0:
+        return None, ("has faces whose normals point inward (Mitsuba takes the side a face's "
+                      "normal points to as outside the medium): flip the faces' winding so "
+                      "the normals point out of the fog")
+    planes = []
+    for t in tri:
+        n = np.cross(t[1] - t[0], t[2] - t[0])
+        norm = np.linalg.norm(n)
+        if norm < tol * tol:
+            continue
+        n = n / norm
+        c = float(n @ t[0])
+        if not any(np.linalg.norm(n - q[:3]) < 1e-6 and abs(c - q[3]) < tol for q in planes):
+            planes.append(np.array([*n, c]))
+    planes = np.array(planes)
+    if np.any(pos @ planes[:, :3].T > planes[:, 3] + tol):
+        return None, "is not convex (a closed non-convex mesh is not supported)"
+    if len(planes) > MAX_PLANES:
+        return None, (f"has {len(planes)} distinct face planes (at most {MAX_PLANES}: use "
+                      "<shape type=\"sphere\"> for a round fog volume)")
+    return planes, None
 
 
 def _box_frame(pos: np.ndarray, tol: float) -> np.ndarray | None:

@@ -92,12 +92,12 @@ def box_path(params, o: mi.Point3f, omega: mi.Vector3f) -> BoxPath:
     ``[-1, 1]³`` in its own frame, where the same per-axis exits hold (the
     path length along the unit ``w_l`` is the parameter of the line, the
     same in both frames)."""
+    if params.medium.boundary != "box":
+        raise ValueError("box_path: the medium's boundary is not a box")
     w = np.asarray(params.light.direction, dtype=np.float64)
     lo, hi = params.medium.bounds_min, params.medium.bounds_max
     M = params.medium.to_local
     if M is not None:
-        if params.medium.boundary != "box":
-            raise ValueError("box_path: the medium's boundary is not a box")
         rows = [vector(M[i, :3]) for i in range(3)]
         o = mi.Point3f(*(dr.dot(rows[i], mi.Vector3f(o)) + scalar(M[i, 3]) for i in range(3)))
         omega = mi.Vector3f(*(dr.dot(rows[i], omega) for i in range(3)))

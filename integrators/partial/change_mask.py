@@ -65,7 +65,8 @@ def frame_invariants(params) -> dict:
                                   [cam.width, cam.height, cam.near_clip]]),
         "light": np.concatenate(lights),
         "medium": np.concatenate([med.sigma_t, med.albedo, med.bounds_min, med.bounds_max,
-                                  np.ravel(med.to_local if med.to_local is not None else [])]
+                                  np.ravel(med.to_local if med.to_local is not None else []),
+                                  np.ravel(med.planes if med.planes is not None else [])]
                                  + [np.ravel(np.array(ph[k], dtype=np.float64))
                                     for k in sorted(ph.keys()) if _numeric(ph[k])]),
     }
