@@ -285,3 +285,31 @@ def test_non_convex_and_open_meshes_are_refused_with_the_reason(tmp_path):
     f += [[n, n + 2, n + 1], [n, n + 3, n + 2], [n, n + 4, n + 3], [n, n + 5, n + 4]]
     with pytest.raises(ValueError, match="not convex"):
         SceneParams.from_scene(mesh_scene(tmp_path, v, np.array(f)))
+
+
+@pytest.mark.parametrize("light", ["directional", "spot"])
+@pytest.mark.parametrize("method", METHODS)
+def test_the_axis_aligned_fast_path_agrees_with_the_general_one(monkeypatch, method, light):
+    """An axis-aligned box clipped by the general affine-box test (its
+    ``to_local``) renders as the closed-form slab path does, to float
+    rounding: the fast path is the same boundary."""
+    import dataclasses
+
+    from integrators.template import base
+
+    scene = mi.load_dict(scene_dict(light=light, res=(32, 24)))
+    integ = mi.load_dict({"type": method})
+    fast = np.array(integ.render_layers(scene, spp=1)["full"])
+    read = SceneParams.from_scene
+
+    def general(scene, sensor=None):
+        params = read(scene, sensor)
+        lo, hi = params.medium.bounds_min, params.medium.bounds_max
+        A = np.diag(2.0 / (hi - lo))
+        medium = dataclasses.replace(params.medium, to_local=np.concatenate(
+            [A, (-A @ ((lo + hi) / 2))[:, None]], axis=1))
+        assert not medium.axis_aligned
+        return dataclasses.replace(params, medium=medium)
+    monkeypatch.setattr(base.SceneParams, "from_scene", staticmethod(general))
+    slow = np.array(integ.render_layers(scene, spp=1)["full"])
+    np.testing.assert_allclose(slow, fast, rtol=2e-4, atol=1e-6 * fast.max())

@@ -102,14 +102,39 @@ def test_filter_prediction_shrinks_with_the_budget(e1, e2):
     assert all(p2 <= p1 * (1 + 1e-12) for p1, p2 in zip(pred, pred[1:]))
 
 
+def test_a_far_marcher_extrapolation_is_refitted_on_finer_steps():
+    """The marcher's probe sees n^-1 between 64 and 128 steps (shadow edges
+    not yet resolved) where the error then falls as n^-3: extrapolating the
+    first slope to 1e-4 asked for 5,120 steps (the user's room: 11,916 steps,
+    26x more accurate than asked).  The rule refits through 128 and 512
+    steps against the finer reference and stays within the budget's steps."""
+    coarse = [4e-3, 2e-3]                                  # k = -1
+    fine = [2e-3, 2e-3 * 4.0 ** -3]                        # 128, 512 steps: k = -3
+    unrefitted = rq.march_steps(*coarse, 1e-4)
+    probe = FixedProbe(coarse + fine)
+    choice = rq.choose_raymarch(probe, 1e-4)
+    assert unrefitted >= 5000
+    assert [a.get("fine", False) for a in probe.asked] == [False, False, True, True]
+    needed = 512 * (qa.SAFETY * 1e-4 / fine[1]) ** (1 / -3.0)   # the true law's steps
+    assert choice["steps"] == pytest.approx(needed, rel=0.02)
+    assert choice["steps"] * 10 < unrefitted
+    assert probe.predicted <= qa.SAFETY * 1e-4 * 1.001
+
+
+def test_a_near_marcher_choice_is_not_refitted():
+    probe = FixedProbe([1e-3, 2.5e-4])                     # k = -2: 1e-4 needs ~160 steps
+    choice = rq.choose_raymarch(probe, 1e-4)
+    assert choice["steps"] <= rq.REFIT_STEPS and len(probe.asked) == 2
+
+
 class FixedProbe:
     """A probe whose errors are given (the rules' input without a render)."""
 
     def __init__(self, errors, diagonal=200.0):
         self.errors, self.diagonal, self.asked = list(errors), diagonal, []
 
-    def error(self, settings, partial=False):
-        self.asked.append(settings)
+    def error(self, settings, partial=False, fine=False):
+        self.asked.append({**settings, **({"fine": True} if fine else {})})
         return self.errors.pop(0)
 
     def predict(self, relmse, how):
@@ -304,7 +329,7 @@ def test_every_plugin_registers_its_own_rule():
     ("tree", [1e-3, 2e-5], 1e-4, "measured", 2e-5),  # the predicted second meets it
     ("filter", [4.61e-5, 4.17e-5], 1e-5, "model", None),
     ("minmax", [1e-3, 2.5e-4], 1e-5, "model", None),
-    ("raymarch", [4e-4, 1e-4], 1e-5, "model", None),
+    ("raymarch", [4e-4, 1e-4, 1e-4, 6e-6], 1e-5, "model", None),
 ])
 def test_every_rule_states_the_error_it_expects(case):
     """The rule records the relMSE it expects of its choice: the probe's

@@ -18,15 +18,34 @@ from .quality_auto import Probe, QualityRule, clamped_exponent, target_of
 FITTED = {"k": -1.99, "k_range": (-4.0, -1.0)}
 #: steps of the marcher's probe
 MARCH_PROBE = (64, 128)
+#: a choice beyond this many steps is refitted through it (:func:`choose_raymarch`)
+REFIT_STEPS = 512
 
 
 def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     """Steps of the exact marcher: relMSE = C n^k through the probe's two
-    step counts (k clamped; the fitted k where the probe sees no error)."""
+    step counts (k clamped; the fitted k where the probe sees no error).
+    Where that asks for more than :data:`REFIT_STEPS`, the slope measured
+    between the probe's coarse counts is no guide (shadow edges converge
+    as n^-1 until the steps resolve them, then faster): the model is fitted
+    again through the probe's finer count and :data:`REFIT_STEPS`, both
+    against the finer reference, so a far extrapolation does not choose
+    tens of times the steps the budget needs."""
     fit = fit or FITTED
     e1, e2 = (probe.error(p, partial=True) for p in march_probe(probe.diagonal))
     n = march_steps(e1, e2, budget, fit)
     predicted = march_error(e1, e2, n, fit)
+    if n > REFIT_STEPS and predicted is not None:
+        n2 = MARCH_PROBE[1]
+        f2, f3 = (probe.error({"visibility": "exact", "steps": m}, partial=True, fine=True)
+                  for m in (n2, REFIT_STEPS))
+        if f3 > 0 and math.isfinite(f3):
+            k = clamped_exponent(f3, f2, REFIT_STEPS, n2, fit)
+            n = int(min(max(math.ceil(REFIT_STEPS * (target_of(budget) / f3) ** (1.0 / k)),
+                            n2), 16384))
+            predicted = f3 * (n / REFIT_STEPS) ** k
+        else:                       # the finer count already matches the finer reference
+            n, predicted = REFIT_STEPS, None
     probe.predict(predicted, "model")
     if predicted is not None and predicted > target_of(budget):
         probe.unreachable(budget, predicted)

@@ -65,6 +65,8 @@ QUALITIES = ("explicit", "auto")
 PROBE_PIXELS = 300
 #: steps of the exact marcher the probe's errors are measured against
 REFERENCE_STEPS = 512
+#: steps of the finer reference a rule may ask for (:meth:`Probe.fine_reference`)
+FINE_REFERENCE_STEPS = 4096
 #: the budget's share the rule aims at (the probe's estimate is noisy)
 SAFETY = 0.5
 
@@ -219,17 +221,30 @@ class Probe:
         img = np.asarray(res[integrator.output], np.float64)
         return img.reshape(-1, img.shape[-1])[self.pixels]
 
-    def error(self, settings: dict, partial=False) -> float:
-        """relMSE of the method at ``settings`` on the probe pixels."""
+    def error(self, settings: dict, partial=False, fine=False) -> float:
+        """relMSE of the method at ``settings`` on the probe pixels (against
+        :meth:`fine_reference` with ``fine``)."""
         import mitsuba as mi
 
         integ = mi.load_dict({"type": self.method, **self.base, **settings})
         res = self.render(integ, partial)
         if not partial:
             self.kept[settings_key(settings)] = res
-        e = subset_relmse(self.values(integ, result=res), self.reference)
-        self.errors.append({**settings, "relmse": e})
+        ref = self.fine_reference() if fine else self.reference
+        e = subset_relmse(self.values(integ, result=res), ref)
+        self.errors.append({**settings, "relmse": e, **({"fine": True} if fine else {})})
         return e
+
+    def fine_reference(self) -> np.ndarray:
+        """The exact marcher at :data:`FINE_REFERENCE_STEPS` on the probe
+        pixels (made once): errors of settings near the probe's own
+        reference need a finer one."""
+        import mitsuba as mi
+
+        if getattr(self, "_fine", None) is None:
+            self._fine = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
+                                                   "steps": FINE_REFERENCE_STEPS}), partial=True)
+        return self._fine
 
     @property
     def diagonal(self) -> float:
