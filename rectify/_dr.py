@@ -7,32 +7,11 @@ literals into new ones.  Everything uses the active Mitsuba variant's types
 """
 from __future__ import annotations
 
-import contextvars
 import math
-from contextlib import contextmanager
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-
-
-#: the opaque scalars of the running render, by (type, value): one kernel
-#: parameter per distinct value, as a literal would be, so that two call
-#: sites of the same computation (the ring's and the re-marched samples'
-#: march) write the same kernel (None: outside a render, no sharing)
-_SHARED: contextvars.ContextVar = contextvars.ContextVar("episcatter_opaque", default=None)
-
-
-@contextmanager
-def shared_scalars():
-    """Within the block, equal frame constants are one opaque variable
-    (:func:`opaque_scalar`, :func:`const` and their users); the integrators'
-    template opens it per render."""
-    token = _SHARED.set({})
-    try:
-        yield
-    finally:
-        _SHARED.reset(token)
 
 
 #: NumPy dtype of each Dr.Jit scalar type an opaque scalar may have
@@ -59,26 +38,13 @@ def _opaque(tp, value):
     return tp(aligned(host, host.dtype))
 
 
-def opaque_unshared(tp, value):
-    """An opaque ``tp`` scalar of its own (never shared with an equal value,
-    unlike :func:`opaque_scalar`): for a value that may equal another of
-    the same kernel in one frame and not in the next, where sharing would
-    change the kernel's parameters (a new kernel) from frame to frame."""
-    return _opaque(tp, value)
-
-
 def opaque_scalar(tp, value):
-    """An opaque ``tp`` scalar holding ``value`` (a kernel parameter, not a
-    literal), or within :func:`shared_scalars` the one variable of that
-    type and value (as a new handle)."""
-    cache = _SHARED.get()
-    if cache is None:
-        return _opaque(tp, value)
-    key = (tp, value, math.copysign(1.0, value))     # -0.0 is not +0.0 (1/x, atan2)
-    var = cache.get(key)
-    if var is None:
-        var = cache[key] = _opaque(tp, value)
-    return tp(var)          # a new handle: an in-place update cannot reach the cache
+    """An opaque ``tp`` scalar holding ``value``: a kernel parameter of its
+    own, not a literal.  Never one variable with an equal value elsewhere:
+    two values equal in one frame and not in the next would change the
+    kernel's parameters, a new kernel (a light's coordinate and σt, two
+    zeros of a rotation, two sizes)."""
+    return _opaque(tp, value)
 
 
 def const(value) -> mi.Float:

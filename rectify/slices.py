@@ -36,7 +36,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ._dr import aligned, const, const_u32, floats, opaque_unshared, pixel_centres
+from ._dr import aligned, const, const_u32, floats, opaque_scalar, pixel_centres
 from .coords import (alpha_beta_to_pixel, alpha_beta_to_pixel_reference, pixel_to_alpha_beta,
                      pixel_to_alpha_beta_reference)
 from .epipole import EpipolarFrame
@@ -290,7 +290,7 @@ def alpha_to_slice(slices: Slices, alpha):
     if slices.wraps:
         alpha = dr.select(alpha < a0, alpha + 2 * math.pi, alpha)
     idx = _first_above(table_np, table, alpha)
-    k0 = dr.clip(mi.Int32(idx) - 1, 0, opaque_unshared(mi.Int32, n - 2))
+    k0 = dr.clip(mi.Int32(idx) - 1, 0, opaque_scalar(mi.Int32, n - 2))
     k0 = mi.UInt32(k0)
     k1 = k0 + 1
     t0, t1 = dr.gather(mi.Float, table, k0), dr.gather(mi.Float, table, k1)

@@ -4,7 +4,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from integrators.core.opaque import Divisor, reciprocal, scalar, shared_scalars
+from integrators.core.opaque import Divisor, reciprocal, scalar
 
 DIVISORS = list(range(1, 130)) + [255, 256, 257, 1023, 1024, 1025, 4095, 4096, 4097, 65535,
                                   65536, 65537, 123456789, 2**31 - 1, 2**31, 2**32 - 1]
@@ -43,53 +43,52 @@ def test_reciprocal_is_the_division_by_a_literal():
         assert np.array_equal(np.asarray(x * reciprocal(c)), np.asarray(x / c))
 
 
-def test_shared_scalars_give_one_variable_per_value_without_aliasing():
-    with shared_scalars():
-        a, b = scalar(1.5), scalar(1.5)
-        assert a.index == b.index
-        a += 1.0                       # an in-place update reaches no other handle
-        assert float(b[0]) == 1.5 and float(scalar(1.5)[0]) == 1.5
-    assert scalar(1.5).index != scalar(1.5).index   # outside a render: fresh ones
+def test_equal_values_are_separate_variables():
+    """Two opaque scalars of equal value are two kernel parameters: values
+    equal in one frame and not in the next (a light's coordinate and σt)
+    must not change the kernel."""
+    a, b = scalar(1.5), scalar(1.5)
+    assert a.index != b.index
+    a += 1.0
+    assert float(b[0]) == 1.5
 
 
 def test_opaque_scalars_keep_the_sign_of_zero_and_refuse_fractions():
-    """-0.0 and +0.0 are two values (1/x, atan2 tell them apart), so a
-    render's shared scalars keep them apart; an integer scalar takes whole
-    numbers only; both kinds are made without a kernel."""
+    """-0.0 and +0.0 keep their signs (1/x, atan2 tell them apart); an
+    integer scalar takes whole numbers only; scalars are made without a
+    kernel."""
     import drjit as dr
     import mitsuba as mi
     import numpy as np
     import pytest
 
-    from rectify._dr import opaque_scalar, opaque_unshared, shared_scalars
+    from rectify._dr import opaque_scalar
 
-    with shared_scalars():
-        pos, neg = opaque_scalar(mi.Float, 0.0), opaque_scalar(mi.Float, -0.0)
-        assert np.array(dr.rcp(pos))[0] == np.inf and np.array(dr.rcp(neg))[0] == -np.inf
-        with pytest.raises(ValueError, match="whole number"):
-            opaque_scalar(mi.UInt32, 3.7)
+    pos, neg = opaque_scalar(mi.Float, 0.0), opaque_scalar(mi.Float, -0.0)
+    assert np.array(dr.rcp(pos))[0] == np.inf and np.array(dr.rcp(neg))[0] == -np.inf
+    with pytest.raises(ValueError, match="whole number"):
+        opaque_scalar(mi.UInt32, 3.7)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()
-    a, b = opaque_unshared(mi.UInt32, 5), opaque_unshared(mi.UInt32, 5)
+    a, b = opaque_scalar(mi.UInt32, 5), opaque_scalar(mi.UInt32, 5)
     assert [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT] == []
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert a.index != b.index and np.array(a)[0] == 5
 
 
 def test_equal_sizes_in_one_frame_and_not_the_next_write_one_kernel():
-    """Sizes are unshared opaque scalars: whether two of them are equal does
-    not change the kernel (shared by value, it did)."""
+    """Whether two opaque scalars are equal does not change the kernel
+    (shared by value, it did)."""
     import drjit as dr
     import mitsuba as mi
 
     from episcatter.kernels import kernel_log
-    from rectify._dr import opaque_unshared, shared_scalars
+    from rectify._dr import opaque_scalar
 
     def frame(r, d):
-        with shared_scalars():
-            x = dr.arange(mi.UInt32, 64)
-            y = x * opaque_unshared(mi.UInt32, r) + opaque_unshared(mi.UInt32, d)
-            dr.eval(y)
+        x = dr.arange(mi.UInt32, 64)
+        y = x * opaque_scalar(mi.UInt32, r) + opaque_scalar(mi.UInt32, d)
+        dr.eval(y)
 
     frame(7, 9)
     with kernel_log() as log:

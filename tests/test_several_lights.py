@@ -6,6 +6,7 @@ Oracles: the sum of the single-light renders of the same integrator (to
 float rounding), and ``volpath`` (``max_depth=2``) within its noise."""
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -136,3 +137,27 @@ def test_several_lights_agree_with_volpath():
     assert abs(ours.mean() / ref.mean() - 1) < 0.01
     err = scale_free_relmse(block_average(ours, 4), block_average(ref, 4))
     assert err <= 2 * noise_relmse_from_variance(ref, variance, block=4)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_moving_one_of_several_lights_compiles_nothing(method):
+    """An animation moves one light: after the first move (Mitsuba then holds
+    the position as a variable instead of the loaded constant: one kernel
+    more, once), a new frame compiles nothing -- the lights' constants are
+    kernel inputs of their own even where two lights' values coincide (the
+    point light's x and the medium's σt are both 0.3 in the second frame,
+    the spot's y and the point's 2.5 in the first; the moves are an
+    animation's small steps, which change no choice a method makes)."""
+    from episcatter.kernels import kernel_log, literal_changes
+
+    scene = scene_of(["light", "light2", "light3"])
+    integ = mi.load_dict({"type": method})
+    params = mi.traverse(scene)
+    logs = []
+    for position in ((0.302, 2.5, 0.401), (0.3, 2.499, 0.4)):
+        params["light2.position"] = dr.opaque(mi.Point3f, position)    # as an animation sets it
+        params.update()
+        with kernel_log() as log:
+            integ.render_layers(scene, spp=1)
+        logs.append(log)
+    assert logs[1].compiled == 0, literal_changes(logs[0], logs[1])

@@ -18,7 +18,7 @@ import mitsuba as mi
 from .capture import sample_rng, seed_offset
 from .light_transport import (color, light_transmittance, phase_eval, point, sample_light, scalar,
                               segment_box, segment_weight, vector, visible_confirmed, visible_exact)
-from .opaque import opaque_unshared, reciprocal
+from .opaque import opaque_scalar, reciprocal
 
 
 def auto_spacing(params) -> str:
@@ -57,7 +57,7 @@ def step_count(steps):
     marches of any steps share their kernels."""
     if isinstance(steps, mi.UInt32):
         return steps, 1.0 / mi.Float(steps)
-    return opaque_unshared(mi.UInt32, steps), reciprocal(steps)
+    return opaque_scalar(mi.UInt32, steps), reciprocal(steps)
 
 
 def _steps(params, cap, steps, spacing):
@@ -274,7 +274,7 @@ def march_bisected(params, cap, steps, bisections=12, spacing="uniform"):
     sigma_t = color(params.medium.sigma_t)
     t_of = _bisection_steps(params, cap, steps, spacing)
     n_steps, inv_steps = step_count(steps)
-    n_bis = opaque_unshared(mi.UInt32, bisections)
+    n_bis = opaque_scalar(mi.UInt32, bisections)
     approach = None if params.light.position is None else closest_approach(params, cap)
 
     # the ray's end lies on a surface, and a shadow ray from the rounded end

@@ -25,12 +25,11 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify._dr import (aligned, const, const_u32, opaque_scalar, opaque_unshared,  # noqa: F401
-                         shared_scalars)
+from rectify._dr import aligned, const, const_u32, opaque_scalar  # noqa: F401
 
 
 #: an opaque ``mi.Float`` / ``mi.UInt32`` holding a Python or NumPy number
-#: (rectify's: one variable per value within a render, :func:`shared_scalars`)
+#: (rectify's: each its own kernel parameter, :func:`~rectify._dr.opaque_scalar`)
 scalar = const
 scalar_u32 = const_u32
 

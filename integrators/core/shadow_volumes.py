@@ -30,7 +30,7 @@ import mitsuba as mi
 import numpy as np
 
 from .light_transport import slabs
-from .opaque import opaque_unshared
+from .opaque import opaque_scalar
 
 
 #: box padding relative to the medium box's diagonal (float rounding of ray tests)
@@ -327,7 +327,7 @@ def clip_volumes(volumes: ShadowVolumes, o, omega, d, first_hit: bool = False):
     d = mi.Float(d)
     if volumes.count == 0:
         return dr.zeros(mi.Bool, n), dr.full(mi.Float, dr.inf, n), dr.full(mi.Float, -dr.inf, n)
-    total = opaque_unshared(mi.UInt32, dr.width(volumes.c))
+    total = opaque_scalar(mi.UInt32, dr.width(volumes.c))
 
     def body(j, t0, t1, lo, hi):
         v = dr.gather(mi.UInt32, volumes.plane_volume, j)

@@ -17,7 +17,7 @@ from rectify.epipole import EpipolarFrame
 
 from ..core.capture import sample_rng, seed_offset
 from ..core.light_transport import first_blocker, point, scalar, vector
-from ..core.opaque import Divisor, opaque_unshared
+from ..core.opaque import Divisor, opaque_scalar
 from .light_rays.directional import LightRays
 from .queries import EpipolarQueries, row_alpha, searchsorted_rows
 
@@ -103,7 +103,7 @@ def _smooth_intervals(queries: EpipolarQueries, rays: LightRays, s_b, gamma_b, h
     relMSE as tracing all), 82 % on the grove (relMSE 4.7e-5 → 5.1e-5).
     ``e``: the blocker index of every boundary (n·(d + 1) lanes)."""
     nb = Divisor(rays.d + 1)       # boundaries per row (the frame's: opaque)
-    d = opaque_unshared(mi.Int32, rays.d)
+    d = opaque_scalar(mi.Int32, rays.d)
     e = mi.Int32(searchsorted_rows(queries, s_b, dr.select(hit, dr.atan2(gamma_b, u_b),
                                                            math.pi)))
     g_b = mi.Int32(nb.divmod(dr.arange(mi.UInt32, dr.width(s_b)))[1])
@@ -212,7 +212,7 @@ def trace_sub_ray_blockers(params, queries: EpipolarQueries, rays: LightRays, k:
                              dr.gather(mi.Float, gamma, sel))
         dr.scatter(out, sub, sel)
         dr.scatter(lo, 0, sel)
-        dr.scatter(hi, opaque_unshared(mi.UInt32, queries.r), sel)
+        dr.scatter(hi, opaque_scalar(mi.UInt32, queries.r), sel)
     dr.eval(out, lo, hi)
     return SubRayBlockers(out, lo, hi)
 

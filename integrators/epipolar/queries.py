@@ -17,7 +17,7 @@ from rectify.slices import Slices, alpha_to_slice
 
 from ..core.capture import CameraCapture
 from ..core.light_transport import point
-from ..core.opaque import floats, opaque_unshared
+from ..core.opaque import floats, opaque_scalar
 from .frame import PAD_BETA, in_ring
 
 
@@ -63,7 +63,7 @@ class EpipolarQueries:
     @property
     def slot(self) -> mi.UInt32:
         """Flat index ``row·r + col`` of each query in (n, r) maps."""
-        return self.row * opaque_unshared(mi.UInt32, self.r) + self.col
+        return self.row * opaque_scalar(mi.UInt32, self.r) + self.col
 
     def padded(self, values, fill: float) -> mi.Float:
         """(n·r,) map with the queries' ``values`` in their slots, ``fill`` elsewhere."""
@@ -134,7 +134,7 @@ def _concat(parts):
     out = dr.empty(type(parts[0]), sum(dr.width(p) for p in parts))
     offset = 0
     for p in parts:           # dr.concat would write each offset into its kernel
-        dr.scatter(out, p, dr.arange(mi.UInt32, dr.width(p)) + opaque_unshared(mi.UInt32, offset))
+        dr.scatter(out, p, dr.arange(mi.UInt32, dr.width(p)) + opaque_scalar(mi.UInt32, offset))
         offset += dr.width(p)
     return out
 
@@ -237,7 +237,7 @@ def searchsorted_rows(queries: EpipolarQueries, s, x, lo=None, hi=None) -> mi.UI
     ``lo``/``hi``: known to lie in [lo, hi] (a per-lane bisection that ends
     at once where lo = hi)."""
     beta_pad = queries.padded(queries.beta, PAD_BETA)
-    r = opaque_unshared(mi.UInt32, queries.r)
+    r = opaque_scalar(mi.UInt32, queries.r)
     base = s * r
 
     def pred(i):

@@ -104,7 +104,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import opaque_unshared
+from ..core.opaque import opaque_scalar
 
 
 DEFAULT_M = 32
@@ -229,7 +229,7 @@ def transmittance_weights(optical_step, n: int, d=1.0) -> mi.TensorXf:
     optical_step = mi.Float(optical_step)
     n_rows = dr.width(optical_step)
     idx = dr.arange(mi.UInt32, n_rows * n)
-    n_o = opaque_unshared(mi.UInt32, n)
+    n_o = opaque_scalar(mi.UInt32, n)
     row, i = idx // n_o, mi.Float(idx % n_o)
     step = dr.gather(mi.Float, optical_step, row)
     d = dr.gather(mi.Float, mi.Float(d), row) if dr.width(mi.Float(d)) > 1 else mi.Float(d)

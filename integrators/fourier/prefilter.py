@@ -12,7 +12,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import opaque_unshared
+from ..core.opaque import opaque_scalar
 from .basis import (DEFAULT_M, band_drop_weights, basis_coefficients_reference, check_M,
                     odd_harmonics, reconstruction_weights, reconstruction_weights_reference,
                     transmittance_weights)
@@ -90,7 +90,7 @@ def region_depth_bounds(z: mi.TensorXf, regions: int):
     """``(z_lo, z_hi)``: min and max blocker depth of every (row, region)."""
     n_rows, n = z.shape
     L = region_length(n, regions)
-    n_o, RL_o = opaque_unshared(mi.UInt32, n), opaque_unshared(mi.UInt32, regions * L)
+    n_o, RL_o = opaque_scalar(mi.UInt32, n), opaque_scalar(mi.UInt32, regions * L)
     idx = dr.arange(mi.UInt32, n_rows * regions * L)
     row, i = idx // RL_o, idx % RL_o
     valid = i < n_o
@@ -141,7 +141,7 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     lane = dr.arange(mi.UInt32, n_rows * regions * groups)
     g, rr = lane % groups, lane // groups          # rr = row * regions + r
     row, r = rr // regions, rr % regions
-    n_o, L_o = opaque_unshared(mi.UInt32, n), opaque_unshared(mi.UInt32, L)
+    n_o, L_o = opaque_scalar(mi.UInt32, n), opaque_scalar(mi.UInt32, L)
     start = r * L_o
     end = dr.minimum(start + L_o, n_o)
     offset, scale = depth_map(dr.gather(mi.Float, z_lo.array, rr),
@@ -256,8 +256,8 @@ def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
     n, R = fb.n, fb.regions
     row = mi.UInt32(row)
     z_r = mi.Float(z_r)
-    n_o, L_o = opaque_unshared(mi.UInt32, n), opaque_unshared(mi.UInt32, fb.region_length)
-    jc = dr.clip(mi.Float(j), 0.0, opaque_unshared(mi.Float, n - 1))
+    n_o, L_o = opaque_scalar(mi.UInt32, n), opaque_scalar(mi.UInt32, fb.region_length)
+    jc = dr.clip(mi.Float(j), 0.0, opaque_scalar(mi.Float, n - 1))
     j0 = mi.UInt32(jc)
     f = jc - mi.Float(j0)
     j1 = dr.minimum(j0 + 1, n_o - 1)

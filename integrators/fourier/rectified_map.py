@@ -66,7 +66,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import Divisor, opaque_unshared, scalar_u32, two_or_more
+from ..core.opaque import Divisor, opaque_scalar, scalar_u32, two_or_more
 from ..epipolar.query_terms import cell_average
 from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
 
@@ -246,7 +246,7 @@ class Coverage:
         P = dr.block_prefix_sum(stack, self.d, exclusive=True)
         out = []
         for k in range(count):
-            at = self.texel if k == 0 else self.texel + opaque_unshared(mi.UInt32, k * size)
+            at = self.texel if k == 0 else self.texel + opaque_scalar(mi.UInt32, k * size)
             out.append(dr.gather(mi.Float, P, at) + self.frac * dr.gather(mi.Float, stack, at))
         return tuple(out)
 

@@ -78,7 +78,7 @@ from rectify._dr import drain_jit_kernels
 from ..core import quality_auto
 from ..core.capture import CameraCapture, capture_camera
 from ..core.film import LAYERS, OUTPUTS, compose_layers, develop_into_film, layer_channels
-from ..core.opaque import shared_scalars
+
 from ..core.properties import check_unknown_properties, read_bool, read_choice, read_number
 from ..core.scene_params import SceneParams
 from ..partial.samples import empty_capture, masked_scattering, merge_capture, sample_mask
@@ -490,8 +490,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         # kernel: reduce with local atomics instead (design: new frames)
         dr.set_expand_threshold(SCATTER_EXPAND_THRESHOLD)
         try:
-            with shared_scalars():
-                yield record
+            yield record
         finally:
             dr.set_expand_threshold(expand)
             dr.set_flag(dr.JitFlag.KernelHistory, history)

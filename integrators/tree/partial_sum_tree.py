@@ -89,7 +89,7 @@ import numpy as np
 
 from rectify._dr import aligned
 
-from ..core.opaque import Divisor, opaque_unshared
+from ..core.opaque import Divisor, opaque_scalar
 from ..epipolar.blockers import BlockerModes
 from ..epipolar.factor_layout import factor_layout
 
@@ -209,7 +209,7 @@ class _Problem(_Record):
 
 
 def _counts(x, n, default):
-    default = opaque_unshared(jt.Int, default)      # a frame's size: not a literal
+    default = opaque_scalar(jt.Int, default)      # a frame's size: not a literal
     if x is None:
         return dr.zeros(jt.Int, n) + default
     c = _flat(x, jt.Int)
@@ -256,7 +256,7 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     # cannot act in their slice (γ ≥ d_count, ⌈β⌉ ≥ r_count, NaN β).
     bf = _flat(beta_in, jt.Float)
     bf = dr.select(dr.isnan(bf), dr.inf, bf)
-    r_o, d_o = opaque_unshared(jt.Int, r), opaque_unshared(jt.Int, d)   # a frame's sizes, not literals
+    r_o, d_o = opaque_scalar(jt.Int, r), opaque_scalar(jt.Int, d)   # a frame's sizes, not literals
     beta = jt.Int(dr.ceil(dr.clip(bf, 0.0, jt.Float(r_o))))
     weight = dr.ones(jt.Float, dr.width(beta)) if weight_in is None else _flat(weight_in, jt.Float)
     j = dr.arange(jt.Int, n * d * M)

@@ -26,7 +26,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.light_transport import phase_eval, scalar
-from ...core.opaque import Divisor, floats, opaque_unshared
+from ...core.opaque import Divisor, floats, opaque_scalar
 from ..light_rays.local import LocalLightRays, light_ray_range
 from ..queries import EpipolarQueries
 from .separation import SeparatedChannel
@@ -441,5 +441,5 @@ class LocalSeparation:
         j = dr.arange(mi.UInt32, queries.n * rays.d * CN)
         per_ray, c = Divisor(CN).divmod(j)
         s_row, g = Divisor(rays.d).divmod(per_ray)
-        cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, opaque_unshared(mi.UInt32, M - 1))
-        return dr.gather(mi.Float, A_cells, cell * opaque_unshared(mi.UInt32, CN) + c)
+        cell = dr.minimum(dr.gather(mi.UInt32, rays.offset, s_row) + g, opaque_scalar(mi.UInt32, M - 1))
+        return dr.gather(mi.Float, A_cells, cell * opaque_scalar(mi.UInt32, CN) + c)

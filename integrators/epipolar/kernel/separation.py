@@ -22,7 +22,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.opaque import Divisor, floats, opaque_unshared, scalar_u32
+from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains
 from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
@@ -86,7 +86,7 @@ def exp_kernel_sum(x: mi.Float, table: np.ndarray, weights: np.ndarray, sigma_t:
     # weights exceed it; their kernel factor e^{-σt x t} has underflowed to
     # 0 there, and an inf weight would turn 0 into NaN
     finite = np.clip(np.nan_to_num(weights, nan=0.0), -1e30, 1e30)
-    st = opaque_unshared(mi.Float, float(sigma_t))
+    st = opaque_scalar(mi.Float, float(sigma_t))
     return nystrom_sums(dr.width(x), finite,
                         lambda k: dr.exp(-st * x * dr.gather(mi.Float, tab, k)))
 
@@ -97,7 +97,7 @@ def directional_ray_kernel(params, queries, rays, sigma_t: float):
     rays: φ of the interval's mean is common to a row and cancels in a
     weighted average); the directional light model's ``ray_kernel``."""
     _, gamma = rays.positions(0.0)
-    neg_st = opaque_unshared(mi.Float, -float(sigma_t))
+    neg_st = opaque_scalar(mi.Float, -float(sigma_t))
     return lambda t, tan: dr.exp(neg_st * dr.gather(mi.Float, gamma, t) * tan)
 
 
@@ -290,14 +290,14 @@ class DirectionalSeparation:
         stride = max(1, -(-d // SUM_CHECK_RAYS))
         m = -(-d // stride)
         lane = dr.arange(mi.UInt32, n * m)
-        d_o, stride_o = (opaque_unshared(mi.UInt32, v) for v in (d, stride))
+        d_o, stride_o = (opaque_scalar(mi.UInt32, v) for v in (d, stride))
         s, piece = Divisor(m).divmod(lane)
         ray = s * d_o + dr.minimum(piece * stride_o, d_o - 1)
         gamma = dr.gather(mi.Float, gamma_all, ray)
         h_ref = rays.h_ref
         h_lo = dr.min(h_ref)
         used = mi.UInt32(queries.r_count) > 0
-        betas = [dr.gather(mi.Float, beta_q, row * opaque_unshared(mi.UInt32, r) + col)
+        betas = [dr.gather(mi.Float, beta_q, row * opaque_scalar(mi.UInt32, r) + col)
                  for col in (dr.zeros(mi.UInt32, n), last)]
         tans = [dr.tan(0.5 * beta) for beta in betas]
         b_all = [[kern.b_terms(t) for t in tans] for kern in kernels]
@@ -310,7 +310,7 @@ class DirectionalSeparation:
         weights = []
         for k, kern in enumerate(kernels):
             st = kern.sigma_t
-            neg_st = opaque_unshared(mi.Float, -float(st))
+            neg_st = opaque_scalar(mi.Float, -float(st))
             L, a_terms = Ls[k], a_all[k]
             for j, (beta, tan_half, b_terms) in enumerate(zip(betas, tans, b_all[k])):
                 tan_s = dr.gather(mi.Float, tan_half, s)
@@ -318,10 +318,10 @@ class DirectionalSeparation:
                 for i in range(kern.N):
                     approx += a_terms[i] * dr.gather(mi.Float, b_terms[i], s)
                 exact = dr.exp(neg_st * gamma * tan_s)
-                base = opaque_unshared(mi.UInt32, (4 * k + 2 * j) * n)
+                base = opaque_scalar(mi.UInt32, (4 * k + 2 * j) * n)
                 dr.scatter_reduce(dr.ReduceOp.Add, sums, dr.abs(approx - exact) * L, base + s)
                 dr.scatter_reduce(dr.ReduceOp.Add, sums, exact * L,
-                                  base + opaque_unshared(mi.UInt32, n) + s)
+                                  base + opaque_scalar(mi.UInt32, n) + s)
                 weights.append(dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma
                                * mi.Float(stride_o) / dr.maximum(dr.sin(beta), 1e-6))
         dr.eval(sums, weights, used)

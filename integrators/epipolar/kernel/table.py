@@ -23,7 +23,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.opaque import floats, opaque_unshared, scalar
+from ...core.opaque import floats, opaque_scalar, scalar
 
 
 def nystrom_sums(n_lanes: int, weights: np.ndarray, term) -> list:
@@ -33,7 +33,7 @@ def nystrom_sums(n_lanes: int, weights: np.ndarray, term) -> list:
     kinds); ``term(k)`` gives the lanes' kernel values at grid point k."""
     K, N = weights.shape
     W = [floats(weights[:, i]) for i in range(N)]
-    n_k = opaque_unshared(mi.UInt32, K)
+    n_k = opaque_scalar(mi.UInt32, K)
 
     def body(k, acc):
         e = term(k)

@@ -13,7 +13,7 @@ import numpy as np
 from rectify.coords import light_coords_to_world
 
 from ...core.light_transport import medium_interval, scalar, vector
-from ...core.opaque import opaque_unshared
+from ...core.opaque import opaque_scalar
 from ..queries import EpipolarQueries, row_alpha
 from .layout import EqualLightRays
 
@@ -122,7 +122,7 @@ def light_side_step(params, rays: LightRays) -> float:
         return 0.0
     sigma_t = scalar(np.max(params.medium.sigma_t))
     s, g, _ = rays.lanes()
-    d = opaque_unshared(mi.UInt32, d)
+    d = opaque_scalar(mi.UInt32, d)
     nxt = s * d + dr.minimum(g + 1, d - 1)
     h, h_n = rays.h, dr.gather(mi.Float, rays.h, nxt)
     h_ref = dr.gather(mi.Float, rays.h_ref, s)
