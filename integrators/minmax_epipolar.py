@@ -68,6 +68,11 @@ def beyond_table_range(params) -> bool:
     return True
 
 
+#: steps of a whole-frame march the scene forces (:meth:`every_pixel`): the
+#: epipolar template's ring steps
+SCENE_MARCH_STEPS = 256
+
+
 class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
     r"""Epipolar sampling with 1D min/max binary trees (``minmax_epipolar``).
 
@@ -397,9 +402,17 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
 
     def every_pixel(self, params, cap, layout, s, shadow_map):
         """Stage ``fixup`` of a frame :meth:`marches_every_pixel` marches:
-        L_scat of every camera sample by the fix-up's marcher."""
+        L_scat of every camera sample by the fix-up's marcher -- with at
+        least :data:`SCENE_MARCH_STEPS` steps where the scene itself rules
+        the slices out (the camera outside the medium, a sun in a sphere or
+        a mesh): every pixel is then the march's, as the other epipolar
+        methods march them (their ring's steps)."""
+        steps = self.fixup_steps
+        if params.camera_outside or (params.light.kind == "directional"
+                                     and params.medium.boundary != "box"):
+            steps = max(steps, SCENE_MARCH_STEPS)
         with self.stage("fixup") as keep:
-            out = march_every_pixel(params, cap, layout.frame, self.fixup_steps, shadow_map,
+            out = march_every_pixel(params, cap, layout.frame, steps, shadow_map,
                                     self.fixup_bisections)
             keep.append(out.L)
         self.record(settings=s, slices=layout.slices.count, samples=0,

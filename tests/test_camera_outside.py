@@ -113,3 +113,18 @@ def test_two_media_are_refused():
                  "bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "medium2"}}
     with pytest.raises(ValueError, match="bounds 2 media"):
         SceneParams.from_scene(mi.load_dict(d))
+
+
+@pytest.mark.parametrize("light", ["directional", "point"])
+def test_minmax_marches_from_outside_as_the_other_epipolar_methods_do(light):
+    """From outside every epipolar method marches every pixel with the same
+    exact marcher at the ring's steps (thick random scenes, seeds 181 and
+    262, were 2-5 % dark at minmax's 128 fix-up steps)."""
+    scene = outside(light, res=(20, 15), sigma_t=2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tree = np.array(mi.load_dict({"type": "epipolar_tree"})
+                        .render_layers(scene, spp=1)["scattering"])
+        minmax = np.array(mi.load_dict({"type": "minmax_epipolar"})
+                          .render_layers(scene, spp=1)["scattering"])
+    np.testing.assert_allclose(minmax, tree, rtol=1e-5, atol=1e-7 * tree.max())
