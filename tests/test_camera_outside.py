@@ -12,9 +12,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from episcatter.metrics import block_average, noise_relmse_from_variance, scale_free_relmse
+from episcatter.metrics import scale_free_relmse
 from integrators.core.scene_params import SceneParams
 from tests.conftest import scene_dict
+from tests.oracles import assert_agrees_with_volpath
 
 
 METHODS = ["raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar"]
@@ -39,17 +40,7 @@ def test_exact_marcher_from_outside_agrees_with_volpath(light):
     """Mean within 1 %, relMSE after 4x4 blocks within twice volpath's own
     noise (16 chunks of 1,024 spp): the entry point, the transmittance from
     it and the unfogged surfaces outside the box are Mitsuba's."""
-    scene = outside(light)
-    vp = mi.load_dict({"type": "volpath", "max_depth": 2})
-    chunks = [np.array(mi.render(scene, integrator=vp, spp=1024, seed=s)) for s in range(16)]
-    ref = np.mean(chunks, axis=0)
-    variance = np.var(chunks, axis=0, ddof=1) / len(chunks)
-    ours = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 256,
-                                  "samples_per_pixel": 256, "jitter": True})
-                    .render_layers(scene)["full"])
-    assert abs(ours.mean() / ref.mean() - 1) < 0.01
-    err = scale_free_relmse(block_average(ours, 4), block_average(ref, 4))
-    assert err <= 2 * noise_relmse_from_variance(ref, variance, block=4)
+    assert_agrees_with_volpath(outside(light))
 
 
 @pytest.mark.parametrize("light", ["directional", "point", "spot"])

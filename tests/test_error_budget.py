@@ -381,3 +381,35 @@ def test_a_budget_no_setting_reaches_is_said():
     probe = FixedProbe([1e-3, 9e-4])
     tq.choose_tree(probe, 1e-9)
     assert probe.over_budget[0] == 1e-9
+
+
+def test_a_textured_spot_through_thin_bars_meets_a_tight_budget():
+    """The issue's first user scene, rebuilt: a textured spot light through a
+    lattice of thin bars, ``epipolar_tree`` with error_budget 1e-5.  Probed
+    against the 512-step marcher (whose own error on the bars is of that
+    order) the rule chose the default spacing with 1,600 light rays and
+    reached 3.8e-5; against the finer reference a tight budget now gets,
+    it meets the budget within 2x and is never coarser than the defaults."""
+    import warnings
+
+    import mitsuba as mi
+
+    from episcatter.metrics import scale_free_relmse
+    from tests.conftest import scene_dict
+
+    d = scene_dict(light="spot_textured", res=(160, 120), blocker=None)
+    for i in range(9):
+        x = -1.0 + 0.25 * i
+        bar = {"radius": 0.015, "bsdf": {"type": "diffuse", "reflectance": 0.3}}
+        d[f"bar_{i}"] = {"type": "cylinder", "p0": [x, 1.4, -1.5], "p1": [x, 1.4, 1.5], **bar}
+        d[f"cross_{i}"] = {"type": "cylinder", "p0": [-1.5, 1.45, x], "p1": [1.5, 1.45, x], **bar}
+    scene = mi.load_dict(d)
+    ref = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 2048,
+                                 "boundary_bisections": 12}).render_layers(scene, spp=1)["full"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = mi.load_dict({"type": "epipolar_tree", "quality": "auto", "error_budget": 1e-5}
+                              ).render_layers(scene, spp=1)
+    settings = result.stats["auto_settings"]
+    assert settings["slice_spacing"] <= 1.0
+    assert scale_free_relmse(np.array(result["full"]), ref) <= 2e-5

@@ -14,6 +14,7 @@ import pytest
 from episcatter.motion import parse_motion
 from episcatter.sequence import Sequence
 from tests.conftest import LIGHTS, T, scene_dict
+from tests.oracles import assert_agrees_with_volpath
 
 
 RES = (32, 24)
@@ -124,19 +125,7 @@ def test_several_lights_agree_with_volpath():
     seeds), both integrating the pixel footprint: mean within 1 %, relMSE
     after 4x4 blocks within twice volpath's own noise (its chunk variance):
     the several-light sum follows Mitsuba's emitter conventions."""
-    from episcatter.metrics import block_average, noise_relmse_from_variance, scale_free_relmse
-
-    scene = scene_of(list(SIX)[:3], res=(24, 18))
-    vp = mi.load_dict({"type": "volpath", "max_depth": 2})
-    chunks = [np.array(mi.render(scene, integrator=vp, spp=1024, seed=s)) for s in range(16)]
-    ref = np.mean(chunks, axis=0)
-    variance = np.var(chunks, axis=0, ddof=1) / len(chunks)
-    ours = np.array(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 256,
-                                  "samples_per_pixel": 256, "jitter": True})
-                    .render_layers(scene)["full"])
-    assert abs(ours.mean() / ref.mean() - 1) < 0.01
-    err = scale_free_relmse(block_average(ours, 4), block_average(ref, 4))
-    assert err <= 2 * noise_relmse_from_variance(ref, variance, block=4)
+    assert_agrees_with_volpath(scene_of(list(SIX)[:3], res=(24, 18)))
 
 
 @pytest.mark.parametrize("method", METHODS)
