@@ -104,7 +104,7 @@ CASES = {
     "boundary a cylinder": (bad(box={"type": "cylinder", "radius": 4, "p0": [0, -4, 0],
                                      "p1": [0, 4, 0], "bsdf": {"type": "null"},
                                      "interior": {"type": "ref", "id": "medium"}}),
-                            "Cylinder, not a box or a sphere"),
+                            "Cylinder, not a box, a sphere or a closed convex mesh"),
     "camera outside the medium": (bad(box_scale=2.0), "outside the boundary of the medium"),
     "HG g out of range": (bad(phase={"type": "hg", "g": math.nan}), "g"),
 }
