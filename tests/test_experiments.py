@@ -2,6 +2,7 @@
 (tiny images, their own reference cache in a temporary folder)."""
 import json
 import math
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -222,3 +223,41 @@ def test_launches_quick(tmp_path):
     check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
     assert {r["method"] for r in rows} == set(launches.METHODS)
     assert all(r["launched"] >= r["distinct"] > 0 and r["compiled"] == 0 for r in rows)
+
+
+def test_capture_floor_quick(tmp_path):
+    from experiments import capture_floor
+    rows = capture_floor.main(["--quick", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
+    (row,) = rows
+    assert row["captures_s"] > 0 and row["net_over_captures"] == pytest.approx(
+        row["scattering_net_s"] / row["captures_s"])
+    assert row["first_s"] > 0 and row["new_frame_s"] > 0 and row["warm_s"] > 0
+
+
+def test_light_cost_quick(tmp_path):
+    from experiments import light_cost
+    rows = light_cost.main(["--quick", "--methods", "raymarch", "epipolar_tree",
+                            "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
+    assert [(r["method"], r["lights"]) for r in rows] == [
+        ("raymarch", 1), ("raymarch", 2), ("epipolar_tree", 1), ("epipolar_tree", 2)]
+    assert all(len(r["single_scattering_s"]) == r["lights"] and r["bound_s"] > 0 for r in rows)
+
+
+def test_light_cost_variants_keep_the_chosen_emitters():
+    from experiments.light_cost import variant_text
+    text = ('<scene version="3.0.0"><emitter type="point" id="a"/><shape type="cube"/>'
+            '<emitter type="spot" id="b"/><emitter type="directional" id="c"/></scene>')
+    assert [e.get("id") for e in ET.fromstring(variant_text(text, {0, 2}))
+            if e.tag == "emitter"] == ["a", "c"]
+    assert len(ET.fromstring(variant_text(text, {1}))) == 2          # the cube stays
+
+
+def test_auto_suite_small(tmp_path):
+    from experiments import auto_suite
+    rows = auto_suite.main(["--method", "raymarch", "--scenes", "point_fog", "--size", "32x24",
+                            "--budgets", "1e-3", "--out", str(tmp_path)])
+    check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
+    (row,) = rows
+    assert row["settings"]["visibility"] == "exact" and row["relmse"] >= 0
