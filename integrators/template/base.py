@@ -78,7 +78,6 @@ from rectify._dr import drain_jit_kernels
 from ..core import quality_auto
 from ..core.capture import CameraCapture, capture_camera
 from ..core.film import LAYERS, OUTPUTS, compose_layers, develop_into_film, layer_channels
-
 from ..core.properties import check_unknown_properties, read_bool, read_choice, read_number
 from ..core.scene_params import SceneParams
 from ..partial.samples import empty_capture, masked_scattering, merge_capture, sample_mask
@@ -303,6 +302,9 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
             states.append(LightState(record.frame_state, L if cap.parent is None else None,
                                      record.stats.pop("frame_choices", None)))
             total = L if total is None else total + L
+        # each light's L_scat is written by the kernel that sums them (kept
+        # for the next frame's partial render, not computed again then)
+        dr.schedule(*(x.L_scat for x in states if x.L_scat is not None))
         self._hand_on(record, states)
         return total
 
@@ -340,6 +342,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
                 union = computed if union is None else union | computed
         finally:
             record.given = given
+        dr.schedule(*(x.L_scat for x in states))
         self._hand_on(record, states)
         return dr.select(union, total, 0.0), union
 
