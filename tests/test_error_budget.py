@@ -413,3 +413,19 @@ def test_a_textured_spot_through_thin_bars_meets_a_tight_budget():
     settings = result.stats["auto_settings"]
     assert settings["slice_spacing"] <= 1.0
     assert scale_free_relmse(np.array(result["full"]), ref) <= 2e-5
+
+
+def test_the_tree_keeps_the_light_rays_its_fit_cannot_resolve():
+    """Both probe settings improved more than the spacing term explains, so
+    the two-point fit gives the light-ray term B = 0; the rule then chose
+    the fewest light rays (the suite's hall at 1e-5: 256 light rays where
+    the second probe measured 1,600 -- 147x over the budget).  A term the
+    fit cannot resolve is kept at least as fine as the measured setting."""
+    s0, r0, _ = tq.TREE_PROBE
+    e1 = 1e-3
+    probe = FixedProbe([e1, 1e-6])            # second: 1e-6, far below what spacing explains
+    settings = tq.choose_tree(probe, 1e-7)
+    second = probe.asked[1]
+    assert tq.tree_model(e1, 1e-6, second=(second["slice_spacing"],
+                                           second["light_rays"] / probe.diagonal))[1] == 0.0
+    assert settings["light_rays"] >= second["light_rays"]

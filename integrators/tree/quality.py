@@ -12,6 +12,8 @@ the plugin registers :data:`TREE_RULE`.
 """
 from __future__ import annotations
 
+import math
+
 from ..core.quality_auto import Probe, QualityRule, target_of
 from ..epipolar.light_rays.directional import MIN_AUTO_LIGHT_RAYS
 
@@ -59,16 +61,23 @@ def tree_choice(e1: float, e2: float, budget: float, fit=None, second=None):
     return tree_choice_of(*tree_model(e1, e2, fit, second), budget, fit)
 
 
-def tree_choice_of(A: float, B: float, budget: float, fit=None, safe: bool = False):
+def tree_choice_of(A: float, B: float, budget: float, fit=None, safe: bool = False,
+                   finest=None):
     """:func:`tree_choice` for the model's terms ``A`` and ``B``; ``safe``:
-    among the settings at least as fine as the defaults only."""
+    among the settings at least as fine as the defaults only; ``finest``:
+    (s, rho) of a measured setting the candidates must be at least as fine
+    as in each term the model could not resolve (A or B 0)."""
     fit = fit or FITTED
     s0, r0, _ = TREE_PROBE
     al, be, ga = fit["time"]
+    max_s = finest[0] if finest is not None and A == 0 else math.inf
+    min_r = finest[1] if finest is not None and B == 0 else 0.0
     best, most = None, None
     for s in TREE_SPACINGS:
         for r in TREE_DENSITIES:
             if safe and (s > DEFAULT_SPACING or r < DEFAULT_DENSITY):
+                continue
+            if s > max_s or r < min_r:
                 continue
             err = tree_error(A, B, s, r, fit)
             t = al + be / s + ga * r / s
@@ -116,7 +125,9 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
         probe.predict(e2, "measured")
         return second
     A, B = tree_model(e1, e2, fit, (s2, r2))
-    s, r = tree_choice_of(A, B, budget, fit, safe=True)   # a guess: never coarser than the defaults
+    # a guess: never coarser than the defaults, nor than the second probe in
+    # a term the two probes could not separate (the fit set it to 0)
+    s, r = tree_choice_of(A, B, budget, fit, safe=True, finest=(s2, r2))
     predicted = tree_error(A, B, s, r, fit)
     probe.predict(predicted, "model")
     if predicted > target_of(budget):
