@@ -34,7 +34,7 @@ from .minmax.unscattered import unshadowed_inscattering
 from .minmax.unwarp import (DEPTH_SIGMA, disagreeing_pixels, fixup, frame_peak, march_every_pixel,
                             unwarp_taps)
 from .minmax.validate import check_scene
-from .template.base import EpiscatterIntegrator
+from .template.base import CAMERA_OUTSIDE, EpiscatterIntegrator, warn_every_pixel_marched
 
 
 #: samples on screen per pixel from which the defaults march every pixel
@@ -71,6 +71,19 @@ def beyond_table_range(params) -> bool:
 #: steps of a whole-frame march the scene forces (:meth:`every_pixel`): the
 #: epipolar template's ring steps
 SCENE_MARCH_STEPS = 256
+
+
+def scene_forced_march(params):
+    """(why, fix) where the scene itself rules the slices out -- the camera
+    outside the medium (the slices' samples start at the eye), a sun in a
+    sphere or a mesh (no light-side path of three linear pieces) -- else
+    None."""
+    if params.camera_outside:
+        return CAMERA_OUTSIDE
+    if params.light.kind == "directional" and params.medium.boundary != "box":
+        return (f"a sun in a {params.medium.boundary}-bounded medium has no light-side path "
+                "of three linear pieces", 'bound the fog with a <shape type="cube">')
+    return None
 
 
 class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
@@ -369,19 +382,9 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         than the samples would.  The choice depends on the
         camera and the light alone, so a partial render makes the full
         render's."""
-        if params.camera_outside:
-            warnings.warn(
-                "minmax_epipolar: the camera is outside the medium, so every pixel is "
-                "ray-marched from where its ray enters the fog (correct, at a ray marcher's "
-                "cost); put the camera inside the fog volume for the epipolar speed-up.",
-                stacklevel=3)
-            return True
-        if params.light.kind == "directional" and params.medium.boundary != "box":
-            warnings.warn(
-                f"minmax_epipolar: a sun in a {params.medium.boundary}-bounded medium has no "
-                "light-side path of three linear pieces, so every pixel is ray-marched "
-                "(correct, at a ray marcher's cost); bound the fog with a <shape type=\"cube\"> "
-                "for the epipolar speed-up.", stacklevel=3)
+        forced = scene_forced_march(params)
+        if forced is not None:
+            warn_every_pixel_marched("minmax_epipolar", *forced)
             return True
         if beyond_table_range(params):
             return True
@@ -408,8 +411,7 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         a mesh): every pixel is then the march's, as the other epipolar
         methods march them (their ring's steps)."""
         steps = self.fixup_steps
-        if params.camera_outside or (params.light.kind == "directional"
-                                     and params.medium.boundary != "box"):
+        if scene_forced_march(params) is not None:
             steps = max(steps, SCENE_MARCH_STEPS)
         with self.stage("fixup") as keep:
             out = march_every_pixel(params, cap, layout.frame, steps, shadow_map,

@@ -182,9 +182,12 @@ class Probe:
         self.pixels = probe_pixels(self.width, self.height, pixels or PROBE_PIXELS)
         self.mask = np.zeros(self.width * self.height, bool)
         self.mask[self.pixels] = True
+        self.reference_steps = steps or REFERENCE_STEPS
         ref = mi.load_dict({"type": "raymarch", "visibility": "exact",
-                            "steps": steps or REFERENCE_STEPS})
+                            "steps": self.reference_steps})
         self.reference = self.values(ref, partial=True)
+        #: (settings key, partial) -> the probe pixels' values of a render
+        self._rendered = {}
         self.errors = []
         #: settings key -> RenderResult of each full-image probe render
         self.kept = {}
@@ -231,12 +234,15 @@ class Probe:
         :meth:`fine_reference` with ``fine``)."""
         import mitsuba as mi
 
-        integ = mi.load_dict({"type": self.method, **self.base, **settings})
-        res = self.render(integ, partial)
-        if not partial:
-            self.kept[settings_key(settings)] = res
+        key = (settings_key(settings), partial)
+        if key not in self._rendered:        # measured against the other reference before
+            integ = mi.load_dict({"type": self.method, **self.base, **settings})
+            res = self.render(integ, partial)
+            if not partial:
+                self.kept[settings_key(settings)] = res
+            self._rendered[key] = self.values(integ, result=res)
         ref = self.fine_reference() if fine else self.reference
-        e = subset_relmse(self.values(integ, result=res), ref)
+        e = subset_relmse(self._rendered[key], ref)
         self.errors.append({**settings, "relmse": e, **({"fine": True} if fine else {})})
         return e
 
@@ -246,6 +252,8 @@ class Probe:
         reference need a finer one."""
         import mitsuba as mi
 
+        if self.reference_steps >= FINE_REFERENCE_STEPS:
+            return self.reference
         if getattr(self, "_fine", None) is None:
             self._fine = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
                                                    "steps": FINE_REFERENCE_STEPS}), partial=True)

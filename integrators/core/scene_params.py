@@ -192,8 +192,6 @@ class SceneParams:
             hi = self.medium.bounds_max + margin
             ilo = self.medium.bounds_min + margin
             ihi = self.medium.bounds_max - margin
-            if not self.medium.axis_aligned:    # the boundary crosses its box's inside
-                ilo, ihi = self.medium.bounds_max, self.medium.bounds_min
             near = []
             for shape in self.scene.shapes() if self.scene is not None else []:
                 bsdf = shape.bsdf()
@@ -202,7 +200,10 @@ class SceneParams:
                 box = shape.bbox()
                 smin, smax = _vec(box.min), _vec(box.max)
                 touches = np.all(smax >= lo) and np.all(smin <= hi)
-                inside = np.all(smin > ilo) and np.all(smax < ihi)
+                # well inside an axis-aligned boundary; any other boundary
+                # crosses its bounding box's inside, so nothing is
+                inside = (self.medium.axis_aligned and np.all(smin > ilo)
+                          and np.all(smax < ihi))
                 if touches and not inside:
                     near.append((smin, smax))
             cache[margin] = None if not near else (

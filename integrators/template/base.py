@@ -137,6 +137,21 @@ class LightStates(tuple):
     the scene's order (its ``RenderResult.frame_state``)."""
 
 
+#: why a camera outside the medium rules out a method's own sampling, and
+#: the fix (:func:`warn_every_pixel_marched`)
+CAMERA_OUTSIDE = ("the camera is outside the medium (each ray is marched from where it "
+                  "enters the fog)", "put the camera inside the fog volume")
+
+
+def warn_every_pixel_marched(method: str, why: str, fix: str) -> None:
+    """The one warning of a method that marches every pixel because the
+    scene rules its own sampling out (``why``): correct, at a ray marcher's
+    cost, and ``fix`` gives the method's speed back."""
+    warnings.warn(f"{method}: {why}, so every pixel is ray-marched (correct, at a ray "
+                  f"marcher's cost); {fix} for the epipolar speed-up.", UserWarning,
+                  stacklevel=4)
+
+
 def count_launches(record: RenderRecord, stage: str) -> None:
     """Charge the JIT kernels launched since the last count to ``stage``."""
     n = len(drain_jit_kernels())

@@ -21,8 +21,6 @@ enters the fog (:meth:`EpipolarIntegrator.marched_from_outside`).
 """
 from __future__ import annotations
 
-import warnings
-
 import drjit as dr
 import mitsuba as mi
 
@@ -35,7 +33,7 @@ from ..epipolar.ring import (RING_BISECTIONS, disagreeing_samples, march_ring, p
                              remarch_samples, to_samples, union_samples)
 from ..partial.row_subset import (Rectification, dirty_rows, moved_rows, restrict_queries,
                                   reuse_rectification)
-from .base import EpiscatterIntegrator
+from .base import CAMERA_OUTSIDE, EpiscatterIntegrator, warn_every_pixel_marched
 
 
 class EpipolarIntegrator(EpiscatterIntegrator):
@@ -151,11 +149,7 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         slices' light rays and queries assume integrals that start at the
         eye, so here the method is correct at a ray marcher's cost; a
         warning says so."""
-        warnings.warn(
-            f"{self.method_name}: the camera is outside the medium, so every pixel is "
-            "ray-marched from where its ray enters the fog (correct, at a ray marcher's "
-            "cost); put the camera inside the fog volume for the epipolar speed-up.",
-            stacklevel=4)
+        warn_every_pixel_marched(self.method_name, *CAMERA_OUTSIDE)
         with self.stage("ring") as keep:
             L = peak_marched(params, cap.entered(), epipolar_frame_of(params), self.ring_steps,
                              self.ring_bisections)
