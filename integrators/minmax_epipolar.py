@@ -14,7 +14,6 @@ import numpy as np
 from rectify import ring_mask
 
 from .core.capture import capture_shadow_map
-from .core.opaque import two_or_more
 from .core.properties import read_bool, read_choice, read_number
 from .core.quality_auto import register_rule
 from .epipolar.ring import RING_BISECTIONS
@@ -24,8 +23,8 @@ from .minmax.minmax_tree import build_tree, colour_bounds, constant_colour
 from .minmax.profiles import METHOD_PROFILES, PROFILES, TALK_METHOD, profile_settings
 from .minmax.quality import MINMAX_RULE
 from .minmax.refinement import (CRITERIA, THRESHOLD_MODES, depth_breaks, initial_samples,
-                                inscattering_breaks, interpolate, interpolation_sources,
-                                visibility_midpoints)
+                                inscattering_breaks, integrate_refined, interpolate,
+                                interpolation_sources)
 from .minmax.section_integral import point_table
 from .minmax.slice_subset import (SliceState, computed_pixels, dirty_slices, merged_bounds,
                                   merged_rows, merged_samples)
@@ -436,53 +435,47 @@ class MinMaxEpipolarIntegrator(EpiscatterIntegrator):
         with self.stage("tree"):
             tree = build_tree(rays, None if self.min_max else 0, const=const)
         max_level = None if self.max_level < 0 else self.max_level
-        values = dr.zeros(mi.Color3f, samples.size)
-        steps = 0
+
+        def integrate(lanes):
+            res = integrate_samples(params, samples, lanes, rays, tree, table, max_level,
+                                    shadow_map)
+            return res.L, res.steps
+
         with self.stage("integrate") as keep:
-            todo = flags
-            for _ in range(64):
-                index = dr.compress(todo)
-                if not dr.width(index):
-                    break
-                lanes = two_or_more(index)
-                res = integrate_samples(params, samples, lanes, rays, tree, table, max_level,
-                                        shadow_map)
-                dr.scatter(values, res.L, lanes)
-                steps += int(dr.sum(res.steps)[0]) * dr.width(index) // dr.width(lanes)
-                if self.refinement != "visibility":
-                    break
-                todo = visibility_midpoints(samples, flags, values, self.visibility_threshold)
-                flags |= todo
-            keep.append(values)
+            done = integrate_refined(samples, flags, integrate, self.visibility_threshold,
+                                     self.refinement == "visibility")
+            keep.append(done.values)
         with self.stage("interpolate") as keep:
-            sources = interpolation_sources(samples, flags)
-            per_sample = interpolate(sources, values, samples.used)
-            keep.append(per_sample)
-        n_int = int(dr.count(flags)[0])
-        return per_sample, dict(used_samples=int(dr.count(samples.used)[0]),
-                                integration_samples=n_int, mean_steps=steps / max(n_int, 1))
+            sources = interpolation_sources(samples, done.flags)
+            per_sample = interpolate(sources, done.values, samples.used)
+            used = dr.zeros(mi.UInt32, 1)
+            dr.scatter_reduce(dr.ReduceOp.Add, used, mi.UInt32(1), mi.UInt32(0), samples.used)
+            keep += [per_sample, used]
+        return per_sample, dict(used_samples=int(used[0]), integration_samples=done.count,
+                                mean_steps=int(done.steps[0]) / max(done.count, 1),
+                                refinement_rounds=done.rounds)
 
     def to_pixels(self, params, cap, samples, per_sample, shadow_map, pixels=None):
         """Stages ``unwarp`` and ``fixup`` of the pixels ``pixels`` (None:
         every pixel)."""
         with self.stage("unwarp") as keep:
             taps = unwarp_taps(samples, per_sample, cap.d, self.depth_sigma, pixels)
-            keep.append(taps.L)
+            keep += [taps.L, taps.weight, taps.darkest, taps.brightest]
         with self.stage("fixup") as keep:
             ring = ring_mask(samples.frame, self.ring_degrees) if self.ring_degrees > 0 else None
             if ring is not None and pixels is not None:
                 ring = dr.gather(mi.Bool, ring, pixels)
-            if ring is None:
-                ring = dr.zeros(mi.Bool, dr.width(taps.weight))
             disagree = disagreeing_pixels(taps, self.remarch_disagreement,
                                           frame_peak(samples, per_sample))
-            if dr.width(disagree):
-                ring = mi.Bool(ring)
-                dr.scatter(ring, True, disagree)
-            self.record(remarched=dr.width(disagree))
+            also = ring if disagree is None else disagree if ring is None else ring | disagree
+            remarched = dr.zeros(mi.UInt32, 1)
+            if disagree is not None:
+                dr.scatter_reduce(dr.ReduceOp.Add, remarched, mi.UInt32(1), mi.UInt32(0),
+                                  disagree)
             out = fixup(params, cap, samples.frame, taps.L, taps.weight, self.fixup_threshold,
-                        self.fixup_steps, shadow_map, ring, pixels, self.fixup_bisections)
+                        self.fixup_steps, shadow_map, also, pixels, self.fixup_bisections)
             keep.append(out.L)
+        self.record(remarched=int(remarched[0]))
         return out
 
     def to_string(self):

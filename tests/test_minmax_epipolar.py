@@ -2,12 +2,14 @@
 image against ``raymarch visibility=exact`` at pixel centres."""
 import math
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
 from episcatter import metrics
 from integrators.core.capture import capture_camera
+from integrators.core.scene_params import SceneParams
 from integrators.epipolar.frame import epipolar_frame_of
 from integrators.minmax import light_rays as lr
 from integrators.minmax import minmax_tree as mt
@@ -15,7 +17,7 @@ from integrators.minmax import refinement as rf
 from integrators.minmax import section_integral as si
 from integrators.minmax import slices_and_samples as ss
 from integrators.minmax.profiles import profile_settings
-from integrators.core.scene_params import SceneParams
+
 
 HG = {"type": "hg", "g": 0.6}
 
@@ -115,9 +117,12 @@ def random_height_map(rng, S, n, lo, hi, runs=True):
 
 
 @pytest.mark.parametrize("colours", ["random", "panes", "rim"])
-def test_tree_build_matches_reference(colours):
-    rng = np.random.default_rng(2)
-    S, n = 3, 32
+@pytest.mark.parametrize("n", [16, 32, 128, 2048])
+def test_tree_build_matches_reference(colours, n):
+    """Every level, colour state and drop against the NumPy twin; sizes of
+    one, two and three of ``build_tree``'s kernel blocks."""
+    rng = np.random.default_rng(2 + n)
+    S = 3
     z = random_height_map(rng, S, n, 0.0, 1.0)
     colour = rng.integers(0, 3, (S, n, 3)).astype(np.float64) if colours == "random" \
         else texel_colours(rng, S, n, colours)
@@ -321,6 +326,43 @@ def test_interpolation_sources_match_direct_scan(make_scene):
         assert np.allclose(np.asarray(src.f)[used], f.ravel()[used], atol=1e-6)
 
 
+@pytest.mark.parametrize("step", [1, 4, 16])
+def test_visibility_refinement_matches_the_rule_round_by_round(make_scene, step):
+    """``integrate_refined`` (the halves of the last round's splits alone,
+    the slices' peaks on the device) integrates exactly the samples of the
+    rule checking every interval every round; values of edges, dark
+    stretches (the floor) and a bright spike that raises a slice's peak
+    late."""
+    p = params_of(make_scene, res=(40, 30))
+    s = ss.epipolar_samples(p, 24, 40)
+    S, M = s.slices.count, s.count
+    rng = np.random.default_rng(step)
+    j = np.arange(M)[None, :]
+    edges = rng.integers(0, M, (S, 3))
+    field = (1.0 + (j > edges[:, :1]) * 3.0 - (j > edges[:, 1:2]) * 3.9) * np.exp(-0.05 * j)
+    field[:, 5] += 40.0 * (rng.random(S) < 0.3)
+    field = np.maximum(field, 0.0).astype(np.float32)
+    lum = mi.Float(field.ravel())
+    flags = rf.initial_samples(s, step)
+
+    def integrate(lanes):
+        v = dr.gather(mi.Float, lum, lanes)
+        return mi.Color3f(v, v, v), dr.full(mi.UInt32, 2, dr.width(lanes))
+
+    done = rf.integrate_refined(s, flags, integrate, 0.1, True)
+    used = np.asarray(s.used).reshape(S, M)
+    ref = rf.visibility_refinement_reference(used, np.asarray(flags).reshape(S, M),
+                                             field, 0.1)
+    got = np.asarray(done.flags).reshape(S, M)
+    assert np.array_equal(got, ref)
+    assert done.count == ref.sum() and int(done.steps[0]) == 2 * ref.sum()
+    values = np.asarray(done.values.x).reshape(S, M)
+    assert np.array_equal(values[ref], field[ref]) and not values[~ref].any()
+    assert step == 1 or ref.sum() > np.asarray(flags).sum()     # the rule refined something
+    once = rf.integrate_refined(s, flags, integrate, 0.1, False)
+    assert np.array_equal(np.asarray(once.flags), np.asarray(flags)) and once.rounds == 1
+
+
 def test_depth_breaks_match_direct_scan(make_scene):
     p = params_of(make_scene, res=(40, 30))
     s = ss.epipolar_samples(p, 24, 40)
@@ -342,9 +384,8 @@ def test_depth_breaks_match_direct_scan(make_scene):
 @pytest.mark.parametrize("sigma", [0.03, 0.1, 1e-4])
 @pytest.mark.parametrize("light", ["directional", "point"])
 def test_unwarp_weights_match_direct_formula(make_scene, sigma, light):
-    from rectify import unrectify_bilateral_reference
-
     from integrators.minmax.unwarp import unwarp
+    from rectify import unrectify_bilateral_reference
     p = params_of(make_scene, res=(24, 18), light=light)
     s = ss.epipolar_samples(p, "auto", 24)
     S, M = s.slices.count, s.count
@@ -520,6 +561,7 @@ def test_performance_sizes_are_the_talks(tmp_path, cache):
     """``--sizes`` takes only the talk's table sizes (a clear error names
     them); with ``--no-directional`` only those spot tables are run."""
     import argparse
+
     from experiments import minmax_performance as mp
     assert mp.talk_size("1024x768") == (1024, 768)
     with pytest.raises(argparse.ArgumentTypeError, match="1366x768"):

@@ -130,55 +130,119 @@ def constant_colour(colour: mi.Color3f, hi: mi.Color3f | None = None):
 OWN_COLOUR = "own"
 
 
+#: levels one kernel of :func:`build_tree` adds: each node reduces up to
+#: ``2^BLOCK_LEVELS`` nodes of the level the block starts from
+BLOCK_LEVELS = 6
+
+
 def build_tree(rays: SliceLightRays, max_level: int | None = None,
                const=OWN_COLOUR) -> MinMaxTree:
-    """Build levels up to ``max_level`` (default: the root, log2 n).  Each
-    level is computed from the previous one's compact arrays; the colour
-    bounds live only while the level above is built.  ``const``: the
-    frame's constant light colour (:func:`constant_colour` of every slice's
-    texels, None: not constant) when ``rays`` are some of its slices."""
+    """Build levels up to ``max_level`` (default: the root, log2 n).  Levels
+    are built in blocks of :data:`BLOCK_LEVELS`, each block one kernel: a
+    node of the block reduces the nodes below it of the level the block
+    starts from (the leaves, or the last block's top level, whose colour
+    bounds live only until the next block), in order, so the running
+    bounds after ``2^m`` of them are those of the node of level ``m``
+    starting at its first texel, whose colour state sets ``drop``.
+    ``const``: the frame's constant light colour (:func:`constant_colour`
+    of every slice's texels, None: not constant) when ``rays`` are some of
+    its slices."""
     n, S = rays.n, rays.slices
     top = int(math.log2(n))
     max_level = top if max_level is None else max(0, min(int(max_level), top))
     if isinstance(const, str) and const == OWN_COLOUR:
         const = constant_colour(rays.colour)
     size = S * 2 * n
-    z_min, z_max = dr.full(mi.Float, dr.inf, size), dr.full(mi.Float, -dr.inf, size)
-    state = None if const is not None else dr.full(mi.UInt32, MIXED, size)
-    drop = None if const is not None else dr.zeros(mi.UInt32, size)
+    tree = dict(z_min=dr.full(mi.Float, dr.inf, size), z_max=dr.full(mi.Float, -dr.inf, size))
+    if const is None:
+        tree.update(state=dr.full(mi.UInt32, MIXED, size), drop=dr.zeros(mi.UInt32, size))
     idx = dr.arange(mi.UInt32, S * n)
     k = idx // n
     dst = k * (2 * n) + (idx - k * n)
-    lo, hi = mi.Float(rays.z_min), mi.Float(rays.z_max)
-    c_lo = c_hi = rays.colour
-    d = dr.zeros(mi.UInt32, S * n)              # level 0: drop to the leaf itself
-    dr.scatter(z_min, lo, dst)
-    dr.scatter(z_max, hi, dst)
-    if state is not None:
-        dr.scatter(state, colour_state(c_lo, c_hi), dst)
-    for level in range(1, max_level + 1):
-        m = n >> level
-        idx = dr.arange(mi.UInt32, S * m)
-        k = idx // m
-        j = idx - k * m
-        a = k * (2 * m) + 2 * j                 # children in the previous level's compact arrays
-        lo = dr.minimum(dr.gather(mi.Float, lo, a), dr.gather(mi.Float, lo, a + 1))
-        hi = dr.maximum(dr.gather(mi.Float, hi, a), dr.gather(mi.Float, hi, a + 1))
-        dst = k * (2 * n) + MinMaxTree.offset(n, level) + j
-        dr.scatter(z_min, lo, dst)
-        dr.scatter(z_max, hi, dst)
-        if state is not None:
-            c_lo = dr.minimum(dr.gather(mi.Color3f, c_lo, a), dr.gather(mi.Color3f, c_lo, a + 1))
-            c_hi = dr.maximum(dr.gather(mi.Color3f, c_hi, a), dr.gather(mi.Color3f, c_hi, a + 1))
-            st = colour_state(c_lo, c_hi)
-            d = dr.select(st == MIXED, dr.gather(mi.UInt32, d, a), mi.UInt32(level))
-            dr.scatter(state, st, dst)
-            dr.scatter(drop, d, dst)
-            dr.eval(c_lo, c_hi, d)
-        dr.eval(lo, hi)
-    dr.eval(z_min, z_max) if state is None else dr.eval(z_min, z_max, state, drop)
-    return MinMaxTree(n=n, levels=max_level + 1, z_min=z_min, z_max=z_max, state=state,
-                      constant_colour=const, slices=S, drop=drop)
+    dr.scatter(tree["z_min"], rays.z_min, dst)
+    dr.scatter(tree["z_max"], rays.z_max, dst)
+    if const is None:
+        dr.scatter(tree["state"], colour_state(rays.colour, rays.colour), dst)
+    # the level a block starts from: compact (stride n >> l0 per slice) or in the tree
+    src = _Source(level=0, stride=n, base=0, z_min=rays.z_min, z_max=rays.z_max,
+                  c_lo=rays.colour, c_hi=rays.colour, drop=None)
+    while src.level < max_level:
+        src = _build_block(tree, src, n, S, min(src.level + BLOCK_LEVELS, max_level))
+    dr.eval(*tree.values())
+    return MinMaxTree(n=n, levels=max_level + 1, constant_colour=const, slices=S, **tree)
+
+
+@dataclass(frozen=True, eq=False)
+class _Source:
+    level: int
+    stride: int               # of the depths and drops: per slice, and the level's offset
+    base: int
+    z_min: mi.Float
+    z_max: mi.Float
+    c_lo: mi.Color3f
+    c_hi: mi.Color3f
+    drop: mi.UInt32 | None
+
+
+def _build_block(tree: dict, src: _Source, n: int, S: int, l1: int) -> _Source:
+    """Levels ``src.level + 1 … l1`` of every slice, one lane per node
+    (:func:`build_tree`); returns level ``l1`` as the next block's source."""
+    l0 = src.level
+    colours = "state" in tree
+    first_t = MinMaxTree.offset(n, l0 + 1)
+    T = MinMaxTree.offset(n, l1 + 1) - first_t   # nodes of the block per slice
+    idx = dr.arange(mi.UInt32, S * T)
+    k = idx // T
+    t = idx - k * T + first_t                    # the node's place in its slice's 2n entries
+    level = mi.UInt32(l0 + 1)
+    for l in range(l0 + 2, l1 + 1):
+        level = dr.select(t >= MinMaxTree.offset(n, l), mi.UInt32(l), level)
+    j = t - (2 * n - (mi.UInt32(2 * n) >> level))
+    shift = level - l0
+    count = mi.UInt32(1) << shift
+    first = j << shift
+    start = k * src.stride + src.base + first
+    c_start = k * (n >> l0) + first              # the colour bounds are compact
+    drop0 = dr.zeros(mi.UInt32, S * T) if src.drop is None else \
+        dr.gather(mi.UInt32, src.drop, start)
+
+    def body(i, lo, hi, c_lo, c_hi, d, m):
+        at = start + i
+        lo = dr.minimum(lo, dr.gather(mi.Float, src.z_min, at))
+        hi = dr.maximum(hi, dr.gather(mi.Float, src.z_max, at))
+        i = i + 1
+        if colours:
+            c_lo = dr.minimum(c_lo, dr.gather(mi.Color3f, src.c_lo, c_start + i - 1))
+            c_hi = dr.maximum(c_hi, dr.gather(mi.Color3f, src.c_hi, c_start + i - 1))
+            # 2^m' nodes reduced: the bounds of the node of level l0 + m' at the first texel
+            whole = i == (mi.UInt32(1) << m)
+            d = dr.select(whole & (colour_state(c_lo, c_hi) != MIXED), l0 + m, d)
+            m = dr.select(whole, m + 1, m)
+        return i, lo, hi, c_lo, c_hi, d, m
+
+    inf = dr.full(mi.Float, dr.inf, S * T)
+    c0 = dr.full(mi.Color3f, dr.inf, S * T) if colours else mi.Color3f(0.0)
+    c1 = dr.full(mi.Color3f, -dr.inf, S * T) if colours else mi.Color3f(0.0)
+    _, lo, hi, c_lo, c_hi, d, _ = dr.while_loop(
+        state=(dr.zeros(mi.UInt32, S * T), inf, -inf, c0, c1, drop0, dr.full(mi.UInt32, 1, S * T)),
+        cond=lambda i, *_: i < count, body=body)
+    dst = k * (2 * n) + t
+    dr.scatter(tree["z_min"], lo, dst)
+    dr.scatter(tree["z_max"], hi, dst)
+    m = n >> l1
+    out_c_lo = out_c_hi = c_lo
+    if colours:
+        dr.scatter(tree["state"], colour_state(c_lo, c_hi), dst)
+        dr.scatter(tree["drop"], d, dst)
+        # the top level's colour bounds, compact, for the next block
+        out_c_lo, out_c_hi = dr.zeros(mi.Color3f, S * m), dr.zeros(mi.Color3f, S * m)
+        top = level == l1
+        dr.scatter(out_c_lo, c_lo, k * m + j, top)
+        dr.scatter(out_c_hi, c_hi, k * m + j, top)
+    dr.eval(*tree.values(), out_c_lo, out_c_hi) if colours else dr.eval(*tree.values())
+    return _Source(level=l1, stride=2 * n, base=MinMaxTree.offset(n, l1), z_min=tree["z_min"],
+                   z_max=tree["z_max"], c_lo=out_c_lo, c_hi=out_c_hi,
+                   drop=tree.get("drop"))
 
 
 def build_tree_reference(z_min, z_max, colour, max_level=None):

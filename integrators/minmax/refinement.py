@@ -43,7 +43,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import mean, scalar_i32, scalar_u32
+from ..core.opaque import mean, scalar_i32, scalar_u32, two_or_more
 from .slices_and_samples import EpipolarSamples
 
 
@@ -201,31 +201,135 @@ def interpolate(sources: Sources, values: mi.Color3f, used: mi.Bool) -> mi.Color
     return dr.select(used, dr.lerp(a, b, sources.f), 0.0)
 
 
-def slice_peak(samples: EpipolarSamples, y: mi.Float, active: mi.Bool) -> mi.Float:
-    """Per sample: the largest ``y`` of the ``active`` samples of its slice."""
-    peak = dr.zeros(mi.Float, samples.slices.count)
-    dr.scatter_reduce(dr.ReduceOp.Max, peak, y, samples.slice, active)
-    return dr.gather(mi.Float, peak, samples.slice)
+@dataclass(frozen=True, eq=False)
+class Integration:
+    """The integration samples after refinement: ``values`` (L_scat of every
+    integration sample, 0 elsewhere), ``flags`` (which samples are), their
+    ``count`` and the march steps they took (``steps``: a one-entry array
+    on the device, read once by the caller), and the rounds it took."""
+    values: mi.Color3f = field(repr=False)
+    flags: mi.Bool = field(repr=False)
+    count: int
+    steps: mi.UInt32 = field(repr=False)
+    rounds: int
 
 
-def visibility_midpoints(samples: EpipolarSamples, flags: mi.Bool, values: mi.Color3f,
-                         threshold: float) -> mi.Bool:
-    """New integration samples: the midpoint of every interval between
-    neighbouring integration samples whose results differ by more than
-    ``threshold`` relative to the larger (floored at 1e-3 of the brightest
-    integration sample of the slice, so that darkness does not refine: a
-    per-slice floor keeps each slice's samples its own business, as the
-    per-slice partial renders of :mod:`.slice_subset` need)."""
-    src = interpolation_sources(samples, flags)
-    s = dr.arange(mi.UInt32, samples.size)
-    # each interval once: at its first inner sample
-    inner = samples.used & ~flags & (src.hi > src.lo) & (src.lo + 1 == s)
-    va = luminance(dr.gather(mi.Color3f, values, src.lo))
-    vb = luminance(dr.gather(mi.Color3f, values, src.hi))
+def neighbour_intervals(samples: EpipolarSamples, index: mi.UInt32):
+    """``(lo, hi, inner)`` of the sorted integration samples ``index``: each
+    pair of neighbours, and whether the interval between them has inner
+    samples of one run (``hi > lo + 1`` and ``lo + 1`` used: run ends are
+    integration samples, so such a pair never crosses a slice or a gap)."""
+    n = dr.width(index)
+    if n < 2:
+        empty = dr.zeros(mi.UInt32, 0)
+        return empty, empty, dr.zeros(mi.Bool, 0)
+    i = dr.arange(mi.UInt32, n - 1)
+    lo = dr.gather(mi.UInt32, index, i)
+    hi = dr.gather(mi.UInt32, index, i + 1)
+    return lo, hi, _has_inner(samples, lo, hi)
+
+
+def _has_inner(samples: EpipolarSamples, lo, hi) -> mi.Bool:
+    return (hi > lo + 1) & dr.gather(mi.Bool, samples.used, lo + 1)
+
+
+def split_intervals(samples: EpipolarSamples, lo, hi, inner, values: mi.Color3f,
+                    peak: mi.Float, threshold: float) -> mi.Bool:
+    """Which intervals ``(lo, hi)`` get their midpoint integrated: those with
+    inner samples whose end results differ by more than ``threshold``
+    relative to the larger, floored at 1e-3 of ``peak``, the brightest
+    integration sample of the slice so far (module docstring)."""
+    va = luminance(dr.gather(mi.Color3f, values, lo))
+    vb = luminance(dr.gather(mi.Color3f, values, hi))
     vmax = dr.maximum(va, vb)
-    floor = 1e-3 * slice_peak(samples, luminance(values), flags)
-    split = inner & (dr.abs(va - vb) > threshold * dr.maximum(vmax, floor))
-    mid = (src.lo + src.hi) // 2
-    out = dr.zeros(mi.Bool, samples.size)
-    dr.scatter(out, True, mid, split)
-    return out & ~flags
+    floor = 1e-3 * dr.gather(mi.Float, peak, dr.gather(mi.UInt32, samples.slice, lo))
+    return inner & (dr.abs(va - vb) > threshold * dr.maximum(vmax, floor))
+
+
+def halves(lo, hi, split: mi.UInt32):
+    """The intervals ``split`` of ``(lo, hi)`` (evaluated), their midpoints
+    and their two halves ``(lo, mid)``, ``(mid, hi)``, interleaved."""
+    def of(i):
+        a, b = dr.gather(mi.UInt32, lo, i), dr.gather(mi.UInt32, hi, i)
+        return a, b, (a + b) >> 1
+    _, _, mid = of(split)
+    j = dr.arange(mi.UInt32, 2 * dr.width(split))
+    a, b, m = of(dr.gather(mi.UInt32, split, j >> 1))
+    right = (j & 1) == 1
+    return mid, dr.select(right, m, a), dr.select(right, b, m)
+
+
+def integrate_refined(samples: EpipolarSamples, flags: mi.Bool, integrate, threshold: float,
+                      refine: bool, max_rounds: int = 64) -> Integration:
+    """Integrate the samples ``flags`` by ``integrate(lanes) -> (L, steps)``
+    and, with ``refine`` (the ``visibility`` criterion), the midpoint of
+    every interval between neighbouring integration samples whose results
+    differ (:func:`split_intervals`), round after round until none does or
+    the interval has no inner sample.
+
+    An interval that does not split keeps its ends' values and a floor
+    that only grows, so it never splits later: each round checks the
+    halves of the last round's splits alone -- the samples integrated are
+    those of checking every interval every round
+    (:func:`visibility_refinement_reference`).  Each round is one
+    integration kernel (writing the values, the flags, the slices' peaks
+    and the step count on the device) and one split test whose count,
+    read back, sizes the next round."""
+    values = dr.zeros(mi.Color3f, samples.size)
+    flags = mi.Bool(flags)
+    peak = dr.zeros(mi.Float, samples.slices.count)
+    steps = dr.zeros(mi.UInt32, 1)
+    index = dr.compress(flags)
+    lo, hi, inner = neighbour_intervals(samples, index) if refine else (None, None, None)
+    count = rounds = 0
+    while dr.width(index) and rounds < max_rounds:
+        n = dr.width(index)
+        lanes = two_or_more(index)
+        L, st = integrate(lanes)
+        dr.scatter(values, L, lanes)
+        # the repeated lane of a one-entry list counts once
+        once = dr.arange(mi.UInt32, dr.width(lanes)) < scalar_u32(n)
+        dr.scatter_reduce(dr.ReduceOp.Add, steps, st, mi.UInt32(0), once)
+        count, rounds = count + n, rounds + 1
+        if not refine:
+            break
+        if rounds > 1:
+            dr.scatter(flags, True, lanes)
+        dr.scatter_reduce(dr.ReduceOp.Max, peak, luminance(L),
+                          dr.gather(mi.UInt32, samples.slice, lanes))
+        test = split_intervals(samples, lo, hi, inner, values, peak, threshold)
+        dr.schedule(lo, hi)               # evaluated with the test, gathered from below
+        split = dr.compress(test)
+        if not dr.width(split):
+            break
+        index, lo, hi = halves(lo, hi, split)
+        inner = _has_inner(samples, lo, hi)
+    return Integration(values=values, flags=flags, count=count, steps=steps, rounds=rounds)
+
+
+def visibility_refinement_reference(used: np.ndarray, flags: np.ndarray, value, threshold: float,
+                                    max_rounds: int = 64) -> np.ndarray:
+    """NumPy twin of :func:`integrate_refined`'s choice, by the rule as
+    stated: every round, every interval between neighbouring integration
+    samples of a row with an inner used sample whose ends' results
+    (``value``: (S, M) luminances) differ by more than ``threshold`` of the
+    larger, floored at 1e-3 of the row's brightest integration sample, gets
+    its midpoint; until a round adds none.  Returns the final (S, M) flags."""
+    flags = flags.copy()
+    value = np.asarray(value, dtype=np.float32)
+    for _ in range(max_rounds - 1):
+        new = np.zeros_like(flags)
+        for k in range(flags.shape[0]):
+            pos = np.flatnonzero(flags[k])
+            peak = np.float32(max([value[k, p] for p in pos], default=0.0))
+            for a, b in zip(pos[:-1], pos[1:]):
+                if b <= a + 1 or not used[k, a + 1]:
+                    continue
+                va, vb = value[k, a], value[k, b]
+                limit = np.float32(threshold) * max(va, vb, np.float32(1e-3) * peak)
+                if abs(va - vb) > limit:
+                    new[k, (a + b) // 2] = True
+        if not new.any():
+            break
+        flags |= new
+    return flags

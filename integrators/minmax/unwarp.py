@@ -33,7 +33,7 @@ from rectify import MIN_WEIGHT, alpha_to_slice, pixel_to_alpha_beta
 from ..core.capture import CameraCapture
 from ..core.marching import auto_spacing, march
 from ..core.opaque import floats, two_or_more
-from ..epipolar.ring import disagreeing, peak_marched
+from ..epipolar.ring import apart, peak_marched
 from .slices_and_samples import EpipolarSamples
 
 
@@ -141,28 +141,26 @@ def unwarp_taps(samples: EpipolarSamples, values: mi.Color3f, pixel_depth: mi.Fl
                       brightest=dr.select(none, L, hi))
 
 
-def disagreeing_pixels(taps: UnwarpTaps, tolerance: float, peak: mi.Float) -> mi.UInt32:
-    """Pixels (positions in ``taps``) whose blended taps disagree: the
+def disagreeing_pixels(taps: UnwarpTaps, tolerance: float, peak: mi.Float) -> mi.Bool | None:
+    """Per pixel of ``taps``: whether its blended taps disagree -- the
     darkest and the brightest differ by more than ``tolerance`` of the
     brighter and by more than ``tolerance``·1e-2 of ``peak`` (the frame's
     largest channel sum, :func:`frame_peak`), by
-    :func:`~integrators.epipolar.ring.disagreeing`, the test the
-    epipolar template applies to a camera sample's two slices.  A shadow
-    edge or a narrow beam runs between such taps, so their blend estimates
-    neither side: :func:`fixup` ray-marches these pixels.
+    :func:`~integrators.epipolar.ring.apart`, the test the epipolar
+    template applies to a camera sample's two slices (None: ``tolerance
+    ≥ 1``, none).  A shadow edge or a narrow beam runs between such taps,
+    so their blend estimates neither side: :func:`fixup` ray-marches these
+    pixels.
 
     The frame's ``peak`` bounds the test's floor, so that a partial render,
     which unwarps a subset of the pixels, flags what the full render does."""
-    n = dr.width(taps.weight)
-    if not n or tolerance >= 1.0:
-        return dr.zeros(mi.UInt32, 0)
-    pair = dr.arange(mi.UInt32, 2 * n)
-    pixel = pair // 2
-    bright = (pair & 1) == 1
-    values = dr.select(bright, dr.gather(mi.Color3f, taps.brightest, pixel),
-                       dr.gather(mi.Color3f, taps.darkest, pixel))
+    if tolerance >= 1.0 or not dr.width(taps.weight):
+        return None
+    dark, bright = taps.darkest, taps.brightest
+    y_d, y_b = dark[0] + dark[1] + dark[2], bright[0] + bright[1] + bright[2]
     third = peak * (1.0 / 3.0)           # the peak as a channel sum, rounded as one
-    return disagreeing(pixel, n, values, tolerance, peak=third + third + third)
+    return apart(dr.maximum(y_d, y_b), dr.minimum(y_d, y_b), dr.maximum(y_d, y_b), tolerance,
+                 peak=third + third + third)
 
 
 def frame_peak(samples: EpipolarSamples, values: mi.Color3f) -> mi.Float:
