@@ -10,6 +10,9 @@ from experiments import common as c
 #: the camera and scene parameters, the capture, the shadow map's bounds
 #: and its texels, the march, the film
 RAYMARCH_LAUNCHES = 8
+#: ... and a warm minmax_epipolar frame: the capture, the samples, the
+#: refinement's rounds (two kernels each), the tree's blocks, the fix-up
+MINMAX_LAUNCHES = 40
 
 
 def _warm_log(scene, integ):
@@ -24,6 +27,13 @@ def test_a_warm_raymarch_frame_launches_few_kernels(name):
     scene = c.load(c.scene_file(name), c.resolution(64, 48))
     log = _warm_log(scene, mi.load_dict({"type": "raymarch"}))
     assert log.launched <= RAYMARCH_LAUNCHES, [k.get("size") for k in log.entries]
+
+
+@pytest.mark.parametrize("name", ["hall", "point_fog", "spot_room", "sun_behind"])
+def test_a_warm_minmax_frame_launches_at_most_40_kernels(name):
+    scene = c.load(c.scene_file(name), c.resolution(160, 120))
+    log = _warm_log(scene, mi.load_dict({"type": "minmax_epipolar"}))
+    assert log.launched <= MINMAX_LAUNCHES, [k.get("size") for k in log.entries]
 
 
 @pytest.mark.parametrize("method", ["raymarch", "epipolar_tree", "minmax_epipolar"])
