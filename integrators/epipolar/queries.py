@@ -102,14 +102,12 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     nearest = dr.select(f < 0.5, k0, k1)
     used = dr.zeros(mi.Bool, slices.count)
     dr.scatter(used, True, nearest)
+    dr.eval(used)
     both = dr.gather(mi.Bool, used, k0) & dr.gather(mi.Bool, used, k1)
     f = dr.select(both, f, dr.select(f < 0.5, 0.0, 1.0))
     f = dr.select(f < SNAP, 0.0, dr.select(f > 1.0 - SNAP, 1.0, f))
-    first = f < 1.0                      # k0 takes a share
-    second = f > 0.0                     # k1 takes a share
-    i0, i1 = dr.compress(first), dr.compress(second)
-    parts = [(i0, dr.gather(mi.UInt32, k0, i0), dr.gather(mi.Float, 1.0 - f, i0)),
-             (i1, dr.gather(mi.UInt32, k1, i1), dr.gather(mi.Float, f, i1))]
+    # the parts in order: k0's shares, k1's shares, the lone samples' far sides
+    masks, slice_of = [f < 1.0, f > 0.0], [k0, k1]
     used_idx = dr.compress(used)
     if dr.width(used_idx) >= 2:
         u = np.asarray(used_idx, np.int64)
@@ -117,26 +115,38 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
         j0, j1, fu = alpha_to_slice(sub, a)
         u0, u1 = dr.gather(mi.UInt32, used_idx, j0), dr.gather(mi.UInt32, used_idx, j1)
         far = dr.select(u0 == nearest, u1, u0)
-        ip = dr.compress(~both & (far != nearest) & (fu > SNAP) & (fu < 1.0 - SNAP))
-        parts.append((ip, dr.gather(mi.UInt32, far, ip), dr.zeros(mi.Float, dr.width(ip))))
-    sample = _concat([dr.gather(mi.UInt32, idx, i) for i, _, _ in parts])
-    k = _concat([kk for _, kk, _ in parts])
-    weight = _concat([w for _, _, w in parts])
-    return sample, k, weight
+        masks.append(~both & (far != nearest) & (fu > SNAP) & (fu < 1.0 - SNAP))
+        slice_of.append(far)
+    dr.schedule(f, *slice_of, *masks[1:])  # one kernel with the first mask's
+    parts = [dr.compress(m) for m in masks]
+    part, at = _concat_index([dr.width(p) for p in parts])
+    i = dr.zeros(mi.UInt32, dr.width(part))
+    k = dr.zeros(mi.UInt32, dr.width(part))
+    for c, (p, kk) in enumerate(zip(parts, slice_of)):
+        if not dr.width(p):
+            continue
+        mine = part == c
+        ic = dr.gather(mi.UInt32, p, at, mine)
+        i = dr.select(mine, ic, i)
+        k = dr.select(mine, dr.gather(mi.UInt32, kk, ic, mine), k)
+    fi = dr.gather(mi.Float, f, i)
+    weight = dr.select(part == 0, 1.0 - fi, dr.select(part == 1, fi, 0.0))
+    return dr.gather(mi.UInt32, idx, i), k, weight
 
 
-def _concat(parts):
-    """``dr.concat`` of the non-empty ``parts`` (it refuses empty arrays,
-    e.g. when no sample of a 1-pixel image falls between two slices)."""
-    parts = [p for p in parts if dr.width(p)]
-    if len(parts) == 1:
-        return parts[0]
-    out = dr.empty(type(parts[0]), sum(dr.width(p) for p in parts))
-    offset = 0
-    for p in parts:           # dr.concat would write each offset into its kernel
-        dr.scatter(out, p, dr.arange(mi.UInt32, dr.width(p)) + opaque_scalar(mi.UInt32, offset))
-        offset += dr.width(p)
-    return out
+def _concat_index(widths: list) -> tuple:
+    """(part, position in it) of every entry of the concatenation of parts of
+    ``widths`` (one kernel reads each part at its own offsets; the offsets
+    opaque: they change from frame to frame)."""
+    total = sum(widths)
+    j = dr.arange(mi.UInt32, total)
+    part, at, offset = dr.zeros(mi.UInt32, total), mi.UInt32(j), 0
+    for c, w in enumerate(widths[:-1]):
+        offset += w
+        past = j >= opaque_scalar(mi.UInt32, offset)
+        part = dr.select(past, mi.UInt32(c + 1), part)
+        at = dr.select(past, j - opaque_scalar(mi.UInt32, offset), at)
+    return part, at
 
 
 #: fewest bits of β in the one-key sort of :func:`_sweep_order`
@@ -158,15 +168,24 @@ def _sweep_order(k: mi.UInt32, beta: mi.Float, slice_count: int) -> mi.UInt32:
     return dr.argsort((k << bits) | q)
 
 
-def _rows(slices: Slices, k: mi.UInt32):
-    """(slice_index, r_count, row, col) of queries already sorted by slice
-    ``k``: the non-empty slices become rows 0..n-1, col = rank in the row."""
+def _slice_counts(slices: Slices, k: mi.UInt32) -> mi.UInt32:
+    """Queries per slice (``k``: each query's slice; any order)."""
     counts = dr.zeros(mi.UInt32, slices.count)
     dr.scatter_reduce(dr.ReduceOp.Add, counts, mi.UInt32(1), k)
+    return counts
+
+
+def _rows(slices: Slices, k: mi.UInt32, counts: mi.UInt32):
+    """(slice_index, r_count, row, col) of queries already sorted by slice
+    ``k`` (``counts``: :func:`_slice_counts`): the non-empty slices become
+    rows 0..n-1, col = rank in the row."""
     used = counts > 0
-    row_of_slice = dr.prefix_sum(dr.select(used, mi.UInt32(1), mi.UInt32(0)))  # exclusive
+    ones = dr.select(used, mi.UInt32(1), mi.UInt32(0))
+    dr.schedule(ones)                    # one kernel with the compression's mask
     slice_index = dr.compress(used)
+    row_of_slice = dr.prefix_sum(ones)   # exclusive
     r_count = dr.gather(mi.UInt32, counts, slice_index)
+    dr.eval(r_count)
     begin = dr.prefix_sum(r_count)
     row = dr.gather(mi.UInt32, row_of_slice, k)
     col = dr.arange(mi.UInt32, dr.width(k)) - dr.gather(mi.UInt32, begin, row)
@@ -200,8 +219,10 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     n_samples = dr.width(cap.d)
     alpha, beta = direction_to_alpha_beta(frame, cap.omega)
     ring = in_ring(beta, ring_deg) & (cap.d > 0)
+    rest = (cap.d > 0) & ~ring
+    dr.schedule(alpha, beta, rest)       # one kernel with the ring's mask
     ring_sample = dr.compress(ring)
-    idx = dr.compress((cap.d > 0) & ~ring)
+    idx = dr.compress(rest)
     if dr.width(idx) == 0:
         return _no_queries(frame, slices, ring_sample, n_samples)
     weight, n_idx = None, dr.width(idx)
@@ -210,12 +231,15 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     else:
         k = dr.gather(mi.UInt32, _nearest_slice(slices, alpha), idx)
     b = dr.gather(mi.Float, beta, idx)
+    counts = _slice_counts(slices, k)
+    # the queries in sample order, their slices' counts and the sort key: one kernel
+    dr.schedule(idx, k, b, *([] if weight is None else [weight]))
     order = _sweep_order(k, b, slices.count)
     sample = dr.gather(mi.UInt32, idx, order)
     k, b = dr.gather(mi.UInt32, k, order), dr.gather(mi.Float, b, order)
     if weight is not None:
         weight = dr.gather(mi.Float, weight, order)
-    slice_index, r_count, row, col = _rows(slices, k)
+    slice_index, r_count, row, col = _rows(slices, k, counts)
     pinhole = mi.Point3f(point(params.camera.origin))
     t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
     gamma_end = end_gamma(frame, b, t_near + dr.gather(mi.Float, cap.d, sample))

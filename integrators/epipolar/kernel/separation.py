@@ -150,11 +150,13 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     terms = [(kern.a_terms(points, count, lanes=lanes_a),
               kern.b_terms(tan_half, lanes=whole.count)) for kern in kernels]
     dr.eval([a for a, _ in terms])  # every channel's N terms in one pass of the Nyström loop
+    # each entry written once: an add to the zeros (a plain scatter would
+    # launch the pending one to the same array first, a kernel per term)
     for c, (kern, (a_terms, b_terms)) in enumerate(zip(kernels, terms)):
         for i in range(kern.N):
             term = scalar_u32(c * N + i)
-            dr.scatter(A, a_terms[i], lane_a + term)
-            dr.scatter(B, b_terms[i], lane_b + term)
+            dr.scatter_reduce(dr.ReduceOp.Add, A, a_terms[i], lane_a + term)
+            dr.scatter_reduce(dr.ReduceOp.Add, B, b_terms[i], lane_b + term)
     d = rays.d
     if own:
         A = separation.to_rows(A, queries, rays, C * N)
@@ -280,11 +282,11 @@ class DirectionalSeparation:
         n, r = queries.n, queries.r
         if not n or not kernels or getattr(rays, "h", None) is None:
             return [0.0] * len(kernels)
-        row = dr.arange(mi.UInt32, n)
-        last = dr.maximum(mi.UInt32(queries.r_count), 1) - 1
-        beta_q = queries.padded(queries.beta, 0.0)
-        s_all, gamma_all = rays.positions(0.0)
-        d = dr.width(gamma_all) // n
+        r_count = mi.UInt32(queries.r_count)
+        used = r_count > 0
+        # the rows' first and last queries (queries are sorted by row, then β)
+        begin = dr.prefix_sum(r_count)
+        d = rays.d
         # every stride-th light ray of each row (at most SUM_CHECK_RAYS): an
         # estimate of the sums at a fraction of the cost
         stride = max(1, -(-d // SUM_CHECK_RAYS))
@@ -292,27 +294,29 @@ class DirectionalSeparation:
         lane = dr.arange(mi.UInt32, n * m)
         d_o, stride_o = (opaque_scalar(mi.UInt32, v) for v in (d, stride))
         s, piece = Divisor(m).divmod(lane)
-        ray = s * d_o + dr.minimum(piece * stride_o, d_o - 1)
-        gamma = dr.gather(mi.Float, gamma_all, ray)
+        g = dr.minimum(piece * stride_o, d_o - 1)
+        ray = s * d_o + g
+        gamma = rays.position(s, g, 0.0)
         h_ref = rays.h_ref
         h_lo = dr.min(h_ref)
-        used = mi.UInt32(queries.r_count) > 0
-        betas = [dr.gather(mi.Float, beta_q, row * opaque_scalar(mi.UInt32, r) + col)
-                 for col in (dr.zeros(mi.UInt32, n), last)]
+        betas = [dr.gather(mi.Float, queries.beta, q, used)
+                 for q in (begin, begin + dr.maximum(r_count, 1) - 1)]
         tans = [dr.tan(0.5 * beta) for beta in betas]
         b_all = [[kern.b_terms(t) for t in tans] for kern in kernels]
-        Ls = [light_side_extinction(kern.sigma_t, dr.gather(mi.Float, rays.h, ray),
-                                    dr.gather(mi.Float, rays.h_ref, s)) for kern in kernels]
-        a_all = [kern.a_terms(gamma, dr.width(gamma)) for kern in kernels]
-        dr.eval(b_all, tans, a_all, Ls)     # one kernel per width: rows, checked light rays
-        # per channel and column: (Σ |K̃ − K| L, Σ K L) per row, in one buffer
-        sums = dr.zeros(mi.Float, 4 * n * len(kernels))
         weights = []
         for k, kern in enumerate(kernels):
-            st = kern.sigma_t
-            neg_st = opaque_scalar(mi.Float, -float(st))
-            L, a_terms = Ls[k], a_all[k]
-            for j, (beta, tan_half, b_terms) in enumerate(zip(betas, tans, b_all[k])):
+            neg_st = opaque_scalar(mi.Float, -float(kern.sigma_t))
+            weights += [dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma
+                        * mi.Float(stride_o) / dr.maximum(dr.sin(beta), 1e-6) for beta in betas]
+        dr.eval(b_all, tans, weights, used)     # the rows' side, one kernel
+        # per channel and column: (Σ |K̃ − K| L, Σ K L) per row, in one buffer
+        sums = dr.zeros(mi.Float, 4 * n * len(kernels))
+        for k, kern in enumerate(kernels):
+            neg_st = opaque_scalar(mi.Float, -float(kern.sigma_t))
+            L = light_side_extinction(kern.sigma_t, dr.gather(mi.Float, rays.h, ray),
+                                      dr.gather(mi.Float, rays.h_ref, s))
+            a_terms = kern.a_terms(gamma, dr.width(gamma))
+            for j, (tan_half, b_terms) in enumerate(zip(tans, b_all[k])):
                 tan_s = dr.gather(mi.Float, tan_half, s)
                 approx = dr.zeros(mi.Float, dr.width(gamma))
                 for i in range(kern.N):
@@ -322,9 +326,7 @@ class DirectionalSeparation:
                 dr.scatter_reduce(dr.ReduceOp.Add, sums, dr.abs(approx - exact) * L, base + s)
                 dr.scatter_reduce(dr.ReduceOp.Add, sums, exact * L,
                                   base + opaque_scalar(mi.UInt32, n) + s)
-                weights.append(dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma
-                               * mi.Float(stride_o) / dr.maximum(dr.sin(beta), 1e-6))
-        dr.eval(sums, weights, used)
+        dr.eval(sums)                           # the checked light rays, one kernel
         # host reads of evaluated arrays (copies, no kernels): the sums, weights
         host = np.asarray(sums).reshape(len(kernels), 2, 2, n)
         w_host = [np.asarray(w) for w in weights]

@@ -95,7 +95,11 @@ class EqualLightRays(LightRayLayout):
 
     def positions(self, offset: float = 0.5):
         s, g, _ = self.lanes()
-        return s, self.start(s) + (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
+        return s, self.position(s, g, offset)
+
+    def position(self, s, g, offset: float = 0.5) -> mi.Float:
+        """γ of light ray ``g`` of rows ``s`` at ``offset`` across its interval."""
+        return self.start(s) + (mi.Float(g) + offset) * dr.gather(mi.Float, self.delta_gamma, s)
 
     def query_depth(self, queries) -> mi.Float:
         return dr.gather(mi.Float, rectified_depth(queries, self).array, queries.slot)
