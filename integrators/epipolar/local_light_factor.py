@@ -55,6 +55,7 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     existing sub-rays carrying light."""
     frame = queries.frame
     s, gamma = sub_ray_gamma(rays, k, seed)
+    dr.schedule(s, gamma)                     # one kernel with the mask's
     idx = dr.compress(rays.used(k))           # sub-rays of existing light rays
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, dr.gather(mi.UInt32, s, idx)),
                             dr.gather(mi.Float, gamma, idx))
@@ -69,6 +70,7 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     depth = scalar(frame.light_distance) - rays.r_in
     if _channels(params) == 1:
         colour = _light_colour(params, frame)
+        dr.eval(colour)
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))
         scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0

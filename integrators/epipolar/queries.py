@@ -5,6 +5,7 @@ rows (Baran et al. 2010 §5, Fig. 6; DESIGN §3).
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import drjit as dr
@@ -252,6 +253,36 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     return q
 
 
+#: per live queries object: what :func:`frame_memo` made of it
+_MEMO = weakref.WeakKeyDictionary()
+
+
+def frame_memo(queries, key: tuple, make):
+    """``make()``, made once per queries object and ``key`` (a tuple of a
+    name and the objects it was made from, compared by identity and held
+    with the value): what several stages of a frame read from the same
+    queries -- a map, a frame-wide range -- is then one kernel, not one
+    per reader."""
+    memo = _MEMO.setdefault(queries, {})
+    ids = tuple(id(k) for k in key)
+    hit = memo.get(ids)
+    if hit is not None and all(a is b for a, b in zip(hit[0], key)):
+        return hit[1]
+    value = make()
+    memo[ids] = (key, value)
+    return value
+
+
+def _padded_beta(queries) -> mi.Float:
+    """``queries.padded(queries.beta, PAD_BETA)``, evaluated once per
+    queries object (every search of a frame reads the same map)."""
+    def make():
+        out = queries.padded(queries.beta, PAD_BETA)
+        dr.eval(out)
+        return out
+    return frame_memo(queries, ("beta_map",), make)
+
+
 def row_alpha(queries, s):
     return dr.gather(mi.Float, queries.alpha, s)
 
@@ -260,7 +291,7 @@ def searchsorted_rows(queries: EpipolarQueries, s, x, lo=None, hi=None) -> mi.UI
     """Number of queries of row ``s`` with β ≤ ``x`` (per lane); with
     ``lo``/``hi``: known to lie in [lo, hi] (a per-lane bisection that ends
     at once where lo = hi)."""
-    beta_pad = queries.padded(queries.beta, PAD_BETA)
+    beta_pad = _padded_beta(queries)
     r = opaque_scalar(mi.UInt32, queries.r)
     base = s * r
 

@@ -25,10 +25,11 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ...core.host_reads import host_reductions
 from ...core.light_transport import phase_eval, scalar
 from ...core.opaque import Divisor, floats, opaque_scalar
 from ..light_rays.local import LocalLightRays, light_ray_range
-from ..queries import EpipolarQueries
+from ..queries import EpipolarQueries, frame_memo
 from .separation import SeparatedChannel
 from .svd import log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
@@ -172,6 +173,12 @@ class Angles:
 
     def gather(self, k) -> "Angles":
         return Angles(*(dr.gather(mi.Float, v, k) for v in (self.tan_half, self.sin, self.cos)))
+
+    def evaluated(self) -> "Angles":
+        """These, evaluated together (a loop gathering from them would
+        evaluate each on its own)."""
+        dr.eval(self.tan_half, self.sin, self.cos)
+        return self
 
 
 def _exponential_moments(u):
@@ -330,8 +337,11 @@ def query_x_max(queries: EpipolarQueries) -> float:
     """Largest x = tan(β/2) tan(γ_end/2) of the whole frame's queries' end
     points (< 1): a frame-wide choice, the same for a partial render's rows."""
     queries = queries.whole_frame
-    x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
-    return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
+
+    def make():
+        x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
+        return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
+    return frame_memo(queries, ("x_max",), make)
 
 
 def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
@@ -344,17 +354,23 @@ def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
     to a relative tolerance over ``[0, γ_hi]`` is all error on a narrow cone
     far from the eye; and a view ray that meets no lit light ray has
     K ≈ 0 on the whole domain, which its normalisation would blow up."""
-    lit = light_ray_range(params, queries)[2]
-    if not dr.any(lit)[0]:
-        lit = dr.full(mi.Bool, True, queries.n)
-    gamma_lo = float(dr.min(dr.select(lit, rays.gamma_lo, dr.inf))[0])
-    gamma_hi = float(dr.max(dr.select(lit, rays.gamma_max, -dr.inf))[0])
-    seen = dr.gather(mi.Bool, lit, queries.row) & (queries.beta < scalar(math.pi - gamma_lo))
-    if not dr.any(seen)[0]:
-        seen = dr.full(mi.Bool, True, dr.width(queries.beta))
-    beta_lo = float(dr.min(dr.select(seen, queries.beta, dr.inf))[0])
-    beta_hi = float(dr.max(dr.select(seen, queries.beta, -dr.inf))[0])
-    return gamma_lo, gamma_hi, beta_lo, beta_hi
+    def make():
+        lit = light_ray_range(params, queries)[2]
+        # with and without the lit rows: the host picks (one kernel each width)
+        any_lit, lo_lit, hi_lit, lo_all, hi_all = host_reductions(
+            (dr.any, lit), (dr.min, dr.select(lit, rays.gamma_lo, dr.inf)),
+            (dr.max, dr.select(lit, rays.gamma_max, -dr.inf)),
+            (dr.min, mi.Float(rays.gamma_lo)), (dr.max, mi.Float(rays.gamma_max)))
+        gamma_lo, gamma_hi = (lo_lit, hi_lit) if any_lit else (lo_all, hi_all)
+        row_lit = dr.gather(mi.Bool, lit, queries.row) if any_lit else mi.Bool(True)
+        seen = row_lit & (queries.beta < scalar(math.pi - gamma_lo))
+        any_seen, lo_seen, hi_seen, lo_q, hi_q = host_reductions(
+            (dr.any, seen), (dr.min, dr.select(seen, queries.beta, dr.inf)),
+            (dr.max, dr.select(seen, queries.beta, -dr.inf)),
+            (dr.min, queries.beta), (dr.max, queries.beta))
+        beta_lo, beta_hi = (lo_seen, hi_seen) if any_seen else (lo_q, hi_q)
+        return gamma_lo, gamma_hi, beta_lo, beta_hi
+    return frame_memo(queries, ("lit_domain", params, rays), make)
 
 
 @dataclass(frozen=True)
@@ -369,7 +385,7 @@ class LocalChannel(SeparatedChannel):
         """The mean of a_i over each lattice cell, ``cells = (bounds, Δγ)``
         (:func:`interval_bounds`)."""
         bounds, delta = cells
-        b_grid = Angles.from_tan_half(floats(self.x_grid))
+        b_grid = Angles.from_tan_half(floats(self.x_grid)).evaluated()
         return nystrom_sums(count, self.WA,
                             lambda k: self.kernel.cell_mean(b_grid.gather(k), bounds, delta))
 
@@ -377,7 +393,7 @@ class LocalChannel(SeparatedChannel):
         """b_i at the queries' tan(β/2): it depends on β alone, so it is
         tabulated in tan(β/2) with the SVD grid's warp (``lanes``:
         :func:`~integrators.epipolar.kernel.table.tabulated_terms`)."""
-        g_grid = Angles.of(floats(self.gamma_grid))
+        g_grid = Angles.of(floats(self.gamma_grid)).evaluated()
 
         def b_sums(x):
             b = Angles.from_tan_half(x)

@@ -11,8 +11,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ...core.host_reads import host_reductions
 from ...core.light_transport import medium_interval, point, scalar, vector
-from ..queries import EpipolarQueries
+from ..queries import EpipolarQueries, frame_memo
 from .directional import MIN_AUTO_LIGHT_RAYS, light_ray_count, row_gamma_end
 from .layout import EqualLightRays
 
@@ -186,11 +187,22 @@ def light_ray_range(params, queries: EpipolarQueries):
     """(γ_lo, γ_hi, lit) per row: ``[0, max γ_end]`` of the row's queries,
     clipped to the spot cone (:func:`cone_interval`); ``lit`` False for rows
     outside the cone (their γ range is then ``[0, max γ_end]``)."""
-    gamma_max = row_gamma_end(queries, 1e-6)
-    lo, hi, lit = cone_interval(params, queries.frame, queries.alpha)
-    hi = dr.minimum(hi, gamma_max)
-    lit &= hi > lo
-    return dr.select(lit, lo, 0.0), dr.select(lit, hi, gamma_max), lit
+    return _ranges(params, queries)[:3]
+
+
+def _ranges(params, queries: EpipolarQueries):
+    """:func:`light_ray_range` and the rows' ``[0, max γ_end]`` bound, made
+    once per frame's queries (the lattice and the kernel's domain read
+    them)."""
+    def make():
+        gamma_max = row_gamma_end(queries, 1e-6)
+        lo, hi, lit = cone_interval(params, queries.frame, queries.alpha)
+        hi = dr.minimum(hi, gamma_max)
+        lit &= hi > lo
+        out = dr.select(lit, lo, 0.0), dr.select(lit, hi, gamma_max), lit, gamma_max
+        dr.eval(out)
+        return out
+    return frame_memo(queries, ("light_ray_range", params), make)
 
 
 def light_ray_spacing(lo, hi, lit, d: int, auto: bool, gamma_max) -> float:
@@ -203,10 +215,13 @@ def light_ray_spacing(lo, hi, lit, d: int, auto: bool, gamma_max) -> float:
     ``MIN_AUTO_LIGHT_RAYS`` across its widest lit row: a narrow cone is
     not left with a few light rays, nor a wide one with more than the
     image's resolution asks for."""
-    width_lit = float(dr.max(dr.select(lit, hi - lo, 0.0) if dr.any(lit)[0] else hi - lo)[0])
+    any_lit, widest_lit, widest, longest = host_reductions(
+        (dr.any, lit), (dr.max, dr.select(lit, hi - lo, 0.0)), (dr.max, hi - lo),
+        (dr.max, gamma_max))
+    width_lit = widest_lit if any_lit else widest
     delta = width_lit / (d - 1)
     if auto:
-        whole = float(dr.max(gamma_max)[0]) / (d - 1)
+        whole = longest / (d - 1)
         delta = max(delta, min(whole, width_lit / (MIN_AUTO_LIGHT_RAYS - 1)))
     return delta
 
@@ -223,10 +238,10 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     spacing, and the kernel is evaluated once per lattice cell
     (:class:`~integrators.epipolar.kernel.local.LocalSeparation`)."""
     frame = queries.frame
-    lo, hi, lit = light_ray_range(params, queries)
+    lo, hi, lit, gamma_max = _ranges(params, queries)
     auto = not d
     d = max(int(light_ray_count(params, d, t_end_max)), 2)
-    delta = max(light_ray_spacing(lo, hi, lit, d, auto, row_gamma_end(queries, 1e-6)), 1e-7)
+    delta = max(light_ray_spacing(lo, hi, lit, d, auto, gamma_max), 1e-7)
     delta = scalar(delta)
     m = mi.UInt32(dr.floor(lo / delta))
     start = mi.Float(m) * delta
@@ -234,10 +249,11 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     count = dr.select(lit, count, 1)
     rays = LocalLightRays(d, start + mi.Float(count) * delta, dr.zeros(mi.Float, queries.n) + delta,
                           start, offset=m, d_count=count)
+    dr.eval(rays.gamma_max, rays.delta_gamma, rays.gamma_lo, rays.offset, rays.d_count)
     s, gamma = rays.positions(0.5)
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, s), gamma)
     t_near, t_far = medium_interval(params, mi.Point3f(point(frame.light_position)), w)
     rays = replace(rays, r_in=dr.select(t_far >= dr.maximum(t_near, 0.0),
                                         dr.maximum(t_near, 0.0), dr.inf))
-    dr.eval(rays.gamma_max, rays.delta_gamma, rays.gamma_lo, rays.r_in, rays.offset, rays.d_count)
+    dr.eval(rays.r_in)
     return rays
