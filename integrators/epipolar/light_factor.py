@@ -12,18 +12,30 @@ import numpy as np
 
 from ..core.light_transport import scalar
 from .light_rays.directional import LIGHT_SIDE_RANGE, LightRays
-from .queries import EpipolarQueries
+from .queries import EpipolarQueries, frame_memo
 
 
-def light_side_gains(sigma_t, path: mi.Float) -> list[float]:
+def lowest_light_side(queries, rays, path: mi.Float) -> float | None:
+    """The smallest finite light-side path length ``path`` of the frame's
+    light ``rays`` (the separation's ``light_side_path``: a directional
+    light's h, a point light's L − r_in; None: none finite), made once
+    per frame's queries and rays: the SVD's tolerance
+    (:func:`light_side_gains`) and the frame's choices read it."""
+    def make():
+        p = mi.Float(path)
+        m = float(dr.min(dr.select(dr.isfinite(p), p, dr.inf))[0]) if dr.width(p) else math.inf
+        return None if m == math.inf else m
+    return frame_memo(queries, ("lowest_light_side", rays), make)
+
+
+def light_side_gains(sigma_t, lowest: float | None) -> list[float]:
     """Per channel of extinction ``sigma_t``: e^{-σt·min(lowest, 0)}, at
-    most e^{c}, ``lowest`` the smallest finite light-side path length of
-    ``path`` (a directional light's h,
-    :func:`~integrators.epipolar.light_rays.directional.row_reference`; a point
-    light's L − r_in): how much the light-side factor (e^{-σt h_ref}·L of
-    the kept light rays) amplifies the tree's absolute errors.  The
-    automatic SVD rank divides its tolerance by it."""
-    lowest = min(float(dr.min(dr.select(dr.isfinite(path), path, 0.0))[0]), 0.0)
+    most e^{c}, ``lowest`` the smallest finite light-side path length
+    (:func:`lowest_light_side`; None: none, as 0): how much the
+    light-side factor (e^{-σt h_ref}·L of the kept light rays) amplifies
+    the tree's absolute errors.  The automatic SVD rank divides its
+    tolerance by it."""
+    lowest = min(0.0 if lowest is None else lowest, 0.0)
     return [math.exp(min(LIGHT_SIDE_RANGE, -float(st) * lowest))
             for st in np.atleast_1d(np.asarray(sigma_t, np.float64))]
 

@@ -37,6 +37,8 @@ import numpy as np
 from rectify.coords import direction_to_alpha_beta_reference
 
 from ..core.light_transport import scalar
+from ..epipolar.kernel.local import query_x
+from ..epipolar.light_factor import lowest_light_side
 from ..epipolar.queries import EpipolarQueries, end_gamma
 
 
@@ -136,20 +138,12 @@ def take_light_rays(queries: EpipolarQueries, rays):
     return replace(rays, **values, row_id=mi.UInt32(queries.rows))
 
 
-def finite_mins(*xs) -> list:
-    """The smallest finite value of each array of ``xs`` (None where it has
-    none), the arrays evaluated together and each minimum read back as a
-    copy: no kernel and no read per array."""
-    ins = []
-    for x in xs:
-        v = mi.Float(x)
-        ins.append(dr.select(dr.isfinite(v), v, dr.inf))
-    dr.eval(ins)
-    out = []
-    for v in ins:
-        m = float(dr.min(v)[0]) if dr.width(v) else math.inf
-        out.append(None if m == math.inf else m)
-    return out
+def host_finite_range(x) -> tuple:
+    """(smallest, largest) finite value of the evaluated array ``x`` (None,
+    None: none), read back as a host copy: no kernel."""
+    v = np.asarray(x, np.float32)
+    v = v[np.isfinite(v)]
+    return (float(v.min()), float(v.max())) if v.size else (None, None)
 
 
 def frame_choices(queries: EpipolarQueries, rays) -> tuple:
@@ -173,13 +167,21 @@ def frame_choices(queries: EpipolarQueries, rays) -> tuple:
     def neg(m):
         return None if m is None else -m
     local = getattr(rays, "r_in", None) is not None
+    # the light side as the SVD's tolerance reads it (one kernel, shared);
+    # the rest are host copies of evaluated arrays (no kernel)
+    beta = host_finite_range(queries.beta)
+    gamma_max = host_finite_range(rays.gamma_max)
     if local:
-        x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
-        mins = finite_mins(queries.beta, -queries.beta, -rays.gamma_max, -rays.delta_gamma,
-                           rays.gamma_lo, -x, scalar(queries.frame.light_distance) - rays.r_in)
+        lowest = lowest_light_side(queries, rays,
+                                   scalar(queries.frame.light_distance) - rays.r_in)
+        mins = [beta[0], neg(beta[1]), neg(gamma_max[1]),
+                neg(host_finite_range(rays.delta_gamma)[1]), host_finite_range(rays.gamma_lo)[0],
+                neg(host_finite_range(query_x(queries))[1]), lowest]
     else:
-        mins = finite_mins(queries.beta, -queries.beta, -rays.gamma_max, rays.h)
-    out = [("rows", queries.n, int(dr.sum(mi.UInt64(queries.slice_index))[0]) if queries.n else 0),
+        mins = [beta[0], neg(beta[1]), neg(gamma_max[1]),
+                lowest_light_side(queries, rays, rays.h)]
+    rows = int(np.asarray(queries.slice_index, np.uint64).sum()) if queries.n else 0
+    out = [("rows", queries.n, rows),
            ("d", rays.d), ("shared", math.ceil(queries.shares - 1e-6)),
            ("beta", mins[0], neg(mins[1])),
            ("gamma_max", neg(mins[2]))]

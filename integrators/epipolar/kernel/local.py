@@ -336,12 +336,19 @@ def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma
 def query_x_max(queries: EpipolarQueries) -> float:
     """Largest x = tan(β/2) tan(γ_end/2) of the whole frame's queries' end
     points (< 1): a frame-wide choice, the same for a partial render's rows."""
-    queries = queries.whole_frame
+    x = query_x(queries.whole_frame)
+    return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
 
+
+def query_x(queries: EpipolarQueries) -> mi.Float:
+    """x = tan(β/2) tan(γ_end/2) of every query's end point, evaluated once
+    per frame's queries (the kernel's grid and the frame's choices read
+    its largest)."""
     def make():
         x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
-        return float(min(max(float(dr.max(x)[0]), 1e-6), 1.0 - 1e-6))
-    return frame_memo(queries, ("x_max",), make)
+        dr.eval(x)
+        return x
+    return frame_memo(queries, ("query_x",), make)
 
 
 def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):

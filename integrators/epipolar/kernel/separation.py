@@ -23,7 +23,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
-from ..light_factor import gray, light_side_extinction, light_side_gains
+from ..light_factor import gray, light_side_extinction, light_side_gains, lowest_light_side
 from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms
 
@@ -129,7 +129,8 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)
     channels = [0] if gray(sigma_t) else [0, 1, 2]
     whole, whole_rays = queries.whole_frame, rays if frame_rays is None else frame_rays
-    gains = light_side_gains(sigma_t, separation.light_side_path(whole, whole_rays))
+    gains = light_side_gains(sigma_t, lowest_light_side(
+        whole, whole_rays, separation.light_side_path(whole, whole_rays)))
     tols = [tol / gains[c] for c in channels]
     kernels = [separation.channel(params, whole, whole_rays, float(sigma_t[c]), rank, t)
                for c, t in zip(channels, tols)]
@@ -279,7 +280,7 @@ class DirectionalSeparation:
         over the largest Σ_γ K·L of any of them; each weighted by its row's
         e^{-σt h_ref} Δγ / sin β (:func:`checked_tolerances`).  Every
         channel's per-row sums are read back together, once."""
-        n, r = queries.n, queries.r
+        n = queries.n
         if not n or not kernels or getattr(rays, "h", None) is None:
             return [0.0] * len(kernels)
         r_count = mi.UInt32(queries.r_count)
