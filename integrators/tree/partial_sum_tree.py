@@ -196,7 +196,7 @@ class _Layout(_Record):
 
 class _Problem(_Record):
     lay: _Layout
-    D: Float        # (n, r), NaN → 0, not yet clamped per slice
+    D: Float        # (n, r) as given (NaN read as 0), not yet clamped per slice
     beta: Int       # (n, d, M) ⌈β_m⌉ in [0, r]; r = never
     weight: Float   # (n, d, M), 0 where the mode cannot act
     A: Float
@@ -206,6 +206,7 @@ class _Problem(_Record):
     d_count: Int    # (n,)
     d_o: Int        # d and r as opaque kernel parameters, so that index
     r_o: Int        # arithmetic does not recompile for every resolution
+    updates: Int    # (n,) modes per slice that act inside the view (w ≠ 0)
 
 
 def _counts(x, n, default):
@@ -249,8 +250,7 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     n, r, d, M = lay.n, lay.r, lay.d, lay.M
     beta_in, weight_in, _ = split_modes(S_modes)
     r_cnt, d_cnt = _counts(r_count, n, r), _counts(d_count, n, d)
-    Df = _flat(D, jt.Float)
-    Df = dr.select(dr.isnan(Df), 0.0, Df)
+    dr.eval(r_cnt, d_cnt)
 
     # Modes: ⌈β⌉ clamped to [0, r] (r = never), and weight 0 for modes that
     # cannot act in their slice (γ ≥ d_count, ⌈β⌉ ≥ r_count, NaN β).
@@ -264,9 +264,13 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     acts = (g < dr.gather(jt.Int, d_cnt, s)) & (beta < dr.gather(jt.Int, r_cnt, s))
     weight = dr.select(acts, weight, 0.0)
     beta = dr.select(weight != 0, beta, r_o)
+    # the modes and their count per slice, one kernel
+    updates = dr.zeros(jt.Int, n)
+    dr.scatter_reduce(dr.ReduceOp.Add, updates, jt.Int(weight != 0), s)
+    dr.eval(beta, weight, updates)
     Lf = None if L is None else _flat(L, jt.Float)
-    return _Problem(lay, Df, beta, weight, _flat(A, jt.Float), _flat(B, jt.Float), Lf,
-                    r_cnt, d_cnt, d_o, r_o)
+    return _Problem(lay, _flat(D, jt.Float), beta, weight, _flat(A, jt.Float),
+                    _flat(B, jt.Float), Lf, r_cnt, d_cnt, d_o, r_o, updates)
 
 
 def _components(lay: _Layout, budget_per_leaf: int):
@@ -309,7 +313,8 @@ def _view_factor(p: _Problem, s, beta, comps):
 
 def _depth_split(p: _Problem, s, beta, d_s):
     """(k0, f) of Fig. 6: D clamped to [0, d_s], k0 = min(⌊D⌋, d_s − 1) ≥ 0."""
-    Dc = dr.clip(dr.gather(jt.Float, p.D, s * p.r_o + beta), 0.0, jt.Float(d_s))
+    D = dr.gather(jt.Float, p.D, s * p.r_o + beta)
+    Dc = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, jt.Float(d_s))
     k0 = dr.maximum(dr.minimum(jt.Int(dr.floor(Dc)), d_s - 1), 0)
     return k0, Dc - jt.Float(k0)
 
@@ -327,12 +332,6 @@ def _accumulate(p: _Problem, out, s, beta, comps, q, active=True):
 # --------------------------------------------------------------------------
 # Step 1: which slices need the tree
 # --------------------------------------------------------------------------
-
-def _updates_per_slice(p: _Problem) -> jt.Int:
-    """Number of modes per slice that act inside the view (w ≠ 0)."""
-    lay = p.lay
-    return dr.block_sum(jt.Int(p.weight != 0), lay.d * lay.M)
-
 
 # --------------------------------------------------------------------------
 # Step 2: termination lists (Fig. 6), counting sort by β, one lane per slice
@@ -387,10 +386,11 @@ def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w
         g += 1
 
 
-def _termination_lists(p: _Problem, slices: jt.Int, counts: jt.Int) -> _Updates:
-    begin = dr.prefix_sum(counts)
-    end = begin + counts
-    total = int(dr.sum(counts)[0]) if dr.width(counts) else 0
+def _termination_lists(p: _Problem, slices: jt.Int) -> _Updates:
+    # the slices without modes hold none: offsets over all slices, read at these
+    begin = dr.gather(jt.Int, dr.prefix_sum(p.updates), slices)
+    end = begin + dr.gather(jt.Int, p.updates, slices)
+    total = int(dr.sum(p.updates)[0])
     gamma, beta = dr.zeros(jt.Int, max(total, 1)), dr.zeros(jt.Int, max(total, 1))
     weight = dr.zeros(jt.Float, max(total, 1))
     # Scatter targets must be real buffers before the symbolic loop: a
@@ -487,8 +487,8 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
         beta += 1
 
 
-def _run_tree(p: _Problem, slices: jt.Int, counts: jt.Int, out: jt.Float):
-    upd = _termination_lists(p, slices, counts)
+def _run_tree(p: _Problem, slices: jt.Int, out: jt.Float):
+    upd = _termination_lists(p, slices)
     leaf_size = _local_size(p.lay.d)
     per_leaf = (LOCAL_BUDGET - leaf_size) // (p.lay.d + 1)
     if per_leaf < 1:
@@ -585,12 +585,13 @@ def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
     p = _prepare(D, S_modes, A, B, L, r_count, d_count)
     out = dr.zeros(jt.Float, lay.n * lay.r * lay.C)
     dr.make_opaque(out)                  # scatter target (see _termination_lists)
-    counts = _updates_per_slice(p)
-    needs_tree = (counts > 0) if skip_unblocked else dr.full(dr.mask_t(jt.Int), True, lay.n)
+    needs_tree = (p.updates > 0) if skip_unblocked else dr.full(dr.mask_t(jt.Int), True, lay.n)
+    free = ~needs_tree
+    dr.schedule(free)                    # both masks in one kernel
     tree_slices = jt.Int(dr.compress(needs_tree))
-    free_slices = jt.Int(dr.compress(~needs_tree))
+    free_slices = jt.Int(dr.compress(free))
     if dr.width(tree_slices):
-        _run_tree(p, tree_slices, dr.gather(jt.Int, counts, tree_slices), out)
+        _run_tree(p, tree_slices, out)
     if dr.width(free_slices):
         _run_closed_form(p, free_slices, out)
     return jt.TensorXf(out * jt.Float(delta_gamma), shape)
