@@ -266,10 +266,11 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
                                                   band))
             terms.magnitude, unshadowed = sweep_magnitude(queries, A, B, L, last)
             value = assemble_queries(terms, gather_queries(queries, integral))
-            keep.extend([value, unshadowed, terms.magnitude])
-        # sums the separated kernel does not resolve: ray-marched by the
-        # template with the samples it re-marches anyway (remarch_disagreeing)
-        unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
+            # sums the separated kernel does not resolve: ray-marched by the
+            # template with the samples it re-marches anyway (remarch_disagreeing)
+            unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
+            keep.extend([value, unshadowed, terms.magnitude, unresolved])
+        unresolved = dr.compress(unresolved)
         self.render_record.march.append(unresolved)
         self.record(last_interval_traced=last.traced, query_count=queries.count,
                     unresolved=dr.width(unresolved))

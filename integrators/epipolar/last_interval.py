@@ -13,6 +13,7 @@ from rectify.coords import ray_meeting_t
 
 from ..core.capture import CameraCapture
 from ..core.light_transport import sample_light, scalar, segment_box, visible_exact
+from ..core.opaque import opaque_scalar
 from .blockers import BlockerModes, leaf_visibility
 from .factor_layout import factor_layout
 from .light_rays.directional import LightRays
@@ -107,29 +108,27 @@ def last_interval_visibility(params, cap: CameraCapture, queries: EpipolarQuerie
     mixed = (V_leaf > MIXED_MARGIN) & (V_leaf < 1.0 - MIXED_MARGIN)
     mixed |= (k0 > 0) & (dr.abs(V_leaf - V_prev) > MIXED_MARGIN)
     mixed &= f > 0.0
-    dr.eval(k0, f, V_leaf, mixed)     # one pass over the modes (memory-bound gathers)
-    V = mi.Float(V_leaf)
+    # ⌈k·f⌉ shadow rays per traced query (the §7 sub-ray density over the
+    # covered part); a traced query's V is their sum, added to 0
+    count = mi.UInt32(dr.clip(dr.ceil(k * f), 1, k))
+    V = dr.select(mixed, 0.0, V_leaf)
+    dr.eval(k0, f, V_leaf, mixed, count, V)     # one pass over the modes (memory-bound gathers)
     idx = dr.compress(mixed)
     if dr.width(idx):
-        # ⌈k·f⌉ shadow rays per traced query (the §7 sub-ray density over
-        # the covered part), at the centres of as many equal pieces of it:
-        # (traced query, piece) lanes
-        f_t = dr.gather(mi.Float, f, idx)
-        count = mi.UInt32(dr.clip(dr.ceil(k * f_t), 1, k))
+        # the shadow rays at the centres of as many equal pieces of the
+        # covered part: (traced query, piece) lanes
         lane = dr.arange(mi.UInt32, dr.width(idx) * k)
-        keep = dr.compress(lane % k < dr.gather(mi.UInt32, count, lane // k))
         owner, piece = lane // k, lane % k
-        owner, piece = dr.gather(mi.UInt32, owner, keep), dr.gather(mi.UInt32, piece, keep)
+        keep = dr.compress(piece < dr.gather(mi.UInt32, count, dr.gather(mi.UInt32, idx, owner)))
+        owner, piece = keep // k, keep % k
         q = dr.gather(mi.UInt32, idx, owner)
         row = dr.gather(mi.UInt32, queries.row, q)
-        n_q = mi.Float(dr.gather(mi.UInt32, count, owner))
+        n_q = mi.Float(dr.gather(mi.UInt32, count, q))
         g = (mi.Float(dr.gather(mi.UInt32, k0, q))
-             + (mi.Float(piece) + 0.5) / n_q * dr.gather(mi.Float, f_t, owner))
+             + (mi.Float(piece) + 0.5) / n_q * dr.gather(mi.Float, f, q))
         gamma = rays.start(row) + g * dr.gather(mi.Float, rays.delta_gamma, row)
         lit = own_ray_visibility(params, cap, queries, q, gamma, LAST_INTERVAL_EPS)
-        V_t = dr.zeros(mi.Float, dr.width(idx))
-        dr.scatter_reduce(dr.ReduceOp.Add, V_t, dr.select(lit, 1.0 / n_q, 0.0), owner)
-        dr.scatter(V, V_t, idx)
+        dr.scatter_reduce(dr.ReduceOp.Add, V, dr.select(lit, 1.0 / n_q, 0.0), q)
     dr.eval(V)
     return LastInterval(k0, f, V_leaf, V, idx)
 
@@ -174,12 +173,13 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
     if not dr.width(idx):
         return out
     row = dr.gather(mi.UInt32, queries.row, idx)
-    slot = dr.gather(mi.UInt32, queries.slot, idx)
+    col = dr.gather(mi.UInt32, queries.col, idx)
+    slot = row * opaque_scalar(mi.UInt32, queries.r) + col
     k0 = dr.gather(mi.UInt32, last.k0, idx)
     a, nA, d, CA, N = factor_arrays(A, True)
     b, nB, _, CB, _ = factor_arrays(B, True)
     leaf_a = row * d + k0 if nA > 1 else k0
-    leaf_b = slot if nB > 1 else dr.gather(mi.UInt32, queries.col, idx)
+    leaf_b = slot if nB > 1 else col
     if L is not None:
         l, nL, _, CL, _ = factor_arrays(L, False)
         leaf_l = row * d + k0 if nL > 1 else k0
@@ -244,8 +244,10 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
         l, nL, _, CL, _ = factor_arrays(L, False)
         v *= dr.gather(mi.Float, l, (s * d + gl if nL > 1 else gl) * CL + c % CL)
     v = dr.select(g < d, v, 0.0)
+    v_abs = dr.abs(v)
+    dr.eval(v, v_abs)                               # both scans' inputs, one kernel
     cum_u = dr.block_prefix_sum(v, w)               # Σ_{γ<g} A_i L
-    cum_m = dr.block_prefix_sum(dr.abs(v), w)       # Σ_{γ<g} |A_i L|
+    cum_m = dr.block_prefix_sum(v_abs, w)           # Σ_{γ<g} |A_i L|
     k0, f = last.k0, last.f
     row = queries.slot if nB > 1 else queries.col
     U, M = [], []
@@ -270,7 +272,7 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
 UNRESOLVED_RATIO = 1e-2
 
 
-def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -> mi.UInt32:
+def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -> mi.Bool:
     """Camera samples with a query whose sum the tree cannot resolve: its
     unshadowed separated sum U below ``UNRESOLVED_RATIO`` of its magnitude
     M (:func:`sweep_magnitude`) in any channel.  The tree's result is then a
@@ -280,12 +282,14 @@ def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -
     e^{20…30} while the view ray's kernel decays as fast (a thick medium
     seen away from a light whose light-side path shrinks along the slice,
     random stress seed 31: 28× the exact sum).  Such samples are ray-marched
-    instead (:func:`~integrators.epipolar.ring.remarch_samples`)."""
+    instead (:func:`~integrators.epipolar.ring.remarch_samples`).  A mask
+    of the camera samples, written by the kernel that evaluates ``U`` and
+    ``M`` (its caller compresses it after)."""
+    mask = dr.zeros(mi.Bool, queries.n_samples)
     if not queries.count:
-        return dr.zeros(mi.UInt32, 0)
+        return mask
     bad = mi.Bool(False)
     for c in range(3):
         bad |= (M[c] > 0.0) & (dr.abs(U[c]) < UNRESOLVED_RATIO * M[c])
-    mask = dr.zeros(mi.Bool, queries.n_samples)
     dr.scatter(mask, True, queries.sample, active=bad)
-    return dr.compress(mask)
+    return mask
