@@ -101,13 +101,15 @@ def disagreeing(sample: mi.UInt32, n: int, values, tolerance: float, peak=None) 
     dr.scatter_reduce(dr.ReduceOp.Max, hi, y, sample)
     dr.scatter_reduce(dr.ReduceOp.Min, lo, y, sample)
     dr.scatter_reduce(dr.ReduceOp.Add, shares, mi.UInt32(1), sample)
-    return dr.compress((shares == 2) & apart(hi, lo, y, tolerance, peak))
+    # the largest answer is the largest of the samples' largest (evaluated
+    # with them: no kernel of its own)
+    return dr.compress((shares == 2) & apart(hi, lo, hi, tolerance, peak))
 
 
 def apart(hi, lo, y, tolerance: float, peak=None) -> mi.Bool:
     """:func:`disagreeing`'s test of two answers whose channel sums are
-    ``hi ≥ lo``, of the frame's answers' channel sums ``y`` (``peak``: as
-    there)."""
+    ``hi ≥ lo``, of the frame's answers' channel sums ``y`` (or of arrays
+    with the same largest value; ``peak``: as there)."""
     peak = dr.max(y) if peak is None else dr.maximum(dr.max(y), peak)
     spread = hi - lo
     return (spread > tolerance * hi) & (spread > tolerance * 1e-2 * peak)
