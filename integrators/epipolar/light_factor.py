@@ -19,8 +19,11 @@ def lowest_light_side(queries, rays, path: mi.Float) -> float | None:
     """The smallest finite light-side path length ``path`` of the frame's
     light ``rays`` (the separation's ``light_side_path``: a directional
     light's h, a point light's L − r_in; None: none finite), made once
-    per frame's queries and rays: the SVD's tolerance
-    (:func:`light_side_gains`) and the frame's choices read it."""
+    per frame's queries and rays (a directional light's automatic light
+    rays find it with their light-side step,
+    :func:`~integrators.epipolar.light_rays.directional.light_side_step_and_lowest`):
+    the SVD's tolerance (:func:`light_side_gains`) and the frame's choices
+    read it."""
     def make():
         p = mi.Float(path)
         m = float(dr.min(dr.select(dr.isfinite(p), p, dr.inf))[0]) if dr.width(p) else math.inf

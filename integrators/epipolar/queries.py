@@ -83,7 +83,7 @@ def _nearest_slice(slices: Slices, alpha) -> mi.UInt32:
 SNAP = 1e-3
 
 
-def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
+def _slice_shares(slices: Slices, alpha, idx: mi.UInt32, used: mi.Bool):
     """(sample, slice, weight) of the queries of samples ``idx`` when each
     is shared between its two neighbouring slices, weights 1 − f and f
     (:func:`~rectify.slices.alpha_to_slice`).  Only slices that are some
@@ -101,9 +101,6 @@ def _slice_shares(slices: Slices, alpha, idx: mi.UInt32):
     a = dr.gather(mi.Float, alpha, idx)
     k0, k1, f = alpha_to_slice(slices, a)
     nearest = dr.select(f < 0.5, k0, k1)
-    used = dr.zeros(mi.Bool, slices.count)
-    dr.scatter(used, True, nearest)
-    dr.eval(used)
     both = dr.gather(mi.Bool, used, k0) & dr.gather(mi.Bool, used, k1)
     f = dr.select(both, f, dr.select(f < 0.5, 0.0, 1.0))
     f = dr.select(f < SNAP, 0.0, dr.select(f > 1.0 - SNAP, 1.0, f))
@@ -186,11 +183,10 @@ def _rows(slices: Slices, k: mi.UInt32, counts: mi.UInt32):
     slice_index = dr.compress(used)
     row_of_slice = dr.prefix_sum(ones)   # exclusive
     r_count = dr.gather(mi.UInt32, counts, slice_index)
-    dr.eval(r_count)
-    begin = dr.prefix_sum(r_count)
-    row = dr.gather(mi.UInt32, row_of_slice, k)
-    col = dr.arange(mi.UInt32, dr.width(k)) - dr.gather(mi.UInt32, begin, row)
-    return slice_index, r_count, row, col
+    # a row's first query: the queries of the slices before (empty ones add 0)
+    begin = dr.prefix_sum(counts)
+    col = dr.arange(mi.UInt32, dr.width(k)) - dr.gather(mi.UInt32, begin, k)
+    return slice_index, r_count, dr.gather(mi.UInt32, row_of_slice, k), col
 
 
 def _no_queries(frame, slices, ring_sample, n_samples) -> EpipolarQueries:
@@ -222,13 +218,17 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     ring = in_ring(beta, ring_deg) & (cap.d > 0)
     rest = (cap.d > 0) & ~ring
     dr.schedule(alpha, beta, rest)       # one kernel with the ring's mask
+    if interpolate:
+        # the slices some sample is nearest to (_slice_shares), in that kernel
+        used = dr.zeros(mi.Bool, slices.count)
+        dr.scatter(used, True, _nearest_slice(slices, alpha), rest)
     ring_sample = dr.compress(ring)
     idx = dr.compress(rest)
     if dr.width(idx) == 0:
         return _no_queries(frame, slices, ring_sample, n_samples)
     weight, n_idx = None, dr.width(idx)
     if interpolate:
-        idx, k, weight = _slice_shares(slices, alpha, idx)
+        idx, k, weight = _slice_shares(slices, alpha, idx, used)
     else:
         k = dr.gather(mi.UInt32, _nearest_slice(slices, alpha), idx)
     b = dr.gather(mi.Float, beta, idx)
@@ -245,11 +245,17 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
     gamma_end = end_gamma(frame, b, t_near + dr.gather(mi.Float, cap.d, sample))
     alpha_rows = dr.gather(mi.Float, floats(slices.alpha), slice_index)
-    q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(r_count)[0]),
+    # the widest row: the fullest slice (counts are evaluated: no kernel)
+    q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(counts)[0]),
                         slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
                         t_near, ring_sample, n_samples, weight, dr.width(idx) / n_idx)
+    # each row's largest γ_end (the light rays' reach), with the queries
+    gamma_end_max = dr.zeros(mi.Float, q.n)
+    dr.scatter_reduce(dr.ReduceOp.Max, gamma_end_max, q.gamma_end, q.row)
     dr.eval(q.slice_index, q.alpha, q.r_count, q.sample, q.row, q.col, q.beta,
-            q.gamma_end, q.t_near, q.ring_sample, *([] if weight is None else [weight]))
+            q.gamma_end, q.t_near, q.ring_sample, gamma_end_max,
+            *([] if weight is None else [weight]))
+    frame_memo(q, ("row_gamma_end",), lambda: gamma_end_max)
     return q
 
 

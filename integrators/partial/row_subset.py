@@ -207,9 +207,8 @@ class Rectification:
 
     @staticmethod
     def of(queries, cap, ring_degrees: float, interpolate: bool) -> "Rectification":
-        valid = cap.d > 0
-        dr.eval(valid)
-        return Rectification(queries, valid, float(ring_degrees), bool(interpolate))
+        # left unevaluated: a kernel only if the next frame compares it
+        return Rectification(queries, cap.d > 0, float(ring_degrees), bool(interpolate))
 
 
 def same_slices(a, b) -> bool:

@@ -12,9 +12,10 @@ import numpy as np
 
 from rectify.coords import light_coords_to_world
 
+from ...core.host_reads import host_reductions
 from ...core.light_transport import medium_interval, scalar, vector
 from ...core.opaque import opaque_scalar
-from ..queries import EpipolarQueries, row_alpha
+from ..queries import EpipolarQueries, frame_memo, row_alpha
 from .layout import EqualLightRays
 
 
@@ -56,12 +57,17 @@ class LightRays(EqualLightRays):
     row_id: mi.UInt32 | None = None
 
 
-def row_gamma_end(queries: EpipolarQueries, floor: float) -> mi.Float:
+def row_gamma_end(queries: EpipolarQueries, floor=None) -> mi.Float:
     """(n,) the largest γ_end of each row's queries, at least ``floor``: how
-    far the row's light rays must reach (both light kinds)."""
-    gamma_max = dr.zeros(mi.Float, queries.n)
-    dr.scatter_reduce(dr.ReduceOp.Max, gamma_max, queries.gamma_end, queries.row)
-    return dr.maximum(gamma_max, floor)
+    far the row's light rays must reach (both light kinds); evaluated
+    (without a floor) with the queries."""
+    def make():
+        gamma_max = dr.zeros(mi.Float, queries.n)
+        dr.scatter_reduce(dr.ReduceOp.Max, gamma_max, queries.gamma_end, queries.row)
+        return gamma_max
+    # assign_queries finds it with the queries
+    gamma_max = frame_memo(queries, ("row_gamma_end",), make)
+    return gamma_max if floor is None else dr.maximum(gamma_max, floor)
 
 
 def light_ray_count(params, d: int, length: float) -> int:
@@ -82,16 +88,22 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
     ``[0, max γ_end]`` and h is each ray's own box exit; a point/spot
     light's rays share one lattice of angles instead
     (:func:`~integrators.epipolar.light_rays.local.local_light_ray_grid`)."""
-    gamma_max = row_gamma_end(queries, scalar(1e-6 * params.scene_extent))
+    floor = scalar(1e-6 * params.scene_extent)
+    gamma_max = row_gamma_end(queries, floor)
     auto = not d
-    d = light_ray_count(params, d, float(dr.max(gamma_max)[0]))
-    rays = with_box_exits(params, queries, LightRays(int(d), gamma_max, gamma_max / d))
+    # the longest row: the rows' evaluated maxima against the floor (no kernel)
+    d = light_ray_count(params, d, max(float(dr.max(row_gamma_end(queries))[0]),
+                                       float(floor[0])))
+    def grid(d):
+        rays = LightRays(int(d), gamma_max, gamma_max / d)
+        dr.eval(rays.gamma_max, rays.delta_gamma)    # the rows' arrays, before any gather
+        return with_box_exits(params, queries, rays)
+    rays = grid(d)
     if auto:
-        step = light_side_step(params, rays)
+        step = light_side_step_and_lowest(params, queries, rays)
         if step > LIGHT_SIDE_STEP and d < MAX_AUTO_LIGHT_RAYS:
             d = min(MAX_AUTO_LIGHT_RAYS, math.ceil(d * step / LIGHT_SIDE_STEP))
-            rays = with_box_exits(params, queries, LightRays(int(d), gamma_max, gamma_max / d))
-    dr.eval(rays.gamma_max, rays.delta_gamma)
+            rays = grid(d)
     return rays
 
 
@@ -117,19 +129,37 @@ def light_side_step(params, rays: LightRays) -> float:
     interval, 2.5 % low (random stress seed 206; converging as 1/d²).
     :func:`light_ray_grid` takes as many more light rays as bring this
     below ``LIGHT_SIDE_STEP``."""
-    d = rays.d
-    if d < 2:
+    if rays.d < 2:
         return 0.0
+    return float(dr.max(_step_lanes(params, rays))[0])
+
+
+def _step_lanes(params, rays: LightRays) -> mi.Float:
+    """σt·|h_{g+1} − h_g| per light ray where both arrive (else 0)."""
     sigma_t = scalar(np.max(params.medium.sigma_t))
     s, g, _ = rays.lanes()
-    d = opaque_scalar(mi.UInt32, d)
+    d = opaque_scalar(mi.UInt32, rays.d)
     nxt = s * d + dr.minimum(g + 1, d - 1)
     h, h_n = rays.h, dr.gather(mi.Float, rays.h, nxt)
     h_ref = dr.gather(mi.Float, rays.h_ref, s)
     arrives = sigma_t * (dr.maximum(h, h_n) - h_ref) <= LIGHT_SIDE_ARRIVES
     ok = (g + 1 < d) & dr.isfinite(h) & dr.isfinite(h_n) & arrives
-    step = dr.select(ok, sigma_t * dr.abs(h_n - h), 0.0)
-    return float(dr.max(step)[0])
+    return dr.select(ok, sigma_t * dr.abs(h_n - h), 0.0)
+
+
+def light_side_step_and_lowest(params, queries: EpipolarQueries, rays: LightRays) -> float:
+    """:func:`light_side_step`, and the smallest finite h of ``rays`` found
+    in the same kernel and kept for the frame's queries and these rays
+    (what :func:`~integrators.epipolar.light_factor.lowest_light_side`
+    reads of h)."""
+    if rays.d < 2:
+        return 0.0
+    h = mi.Float(rays.h)
+    step, lowest = host_reductions((dr.max, _step_lanes(params, rays)),
+                                   (dr.min, dr.select(dr.isfinite(h), h, dr.inf)))
+    frame_memo(queries, ("lowest_light_side", rays),
+               lambda: None if lowest == math.inf else lowest)
+    return step
 
 
 def with_box_exits(params, queries: EpipolarQueries, rays):
@@ -143,6 +173,7 @@ def with_box_exits(params, queries: EpipolarQueries, rays):
     base = light_coords_to_world(frame, row_alpha(queries, s), gamma, 0.0)
     h, hits = axial_exit(params, base, vector(frame.axis))
     h = dr.select(hits, h, dr.inf)
+    dr.schedule(h)      # with the rows' minimum (reading it launches that kernel)
     h_ref = row_reference(params, h, s, queries.n)
     dr.eval(h, h_ref)
     return replace(rays, h=h, h_ref=h_ref)
