@@ -150,7 +150,8 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     lane_b = queries.slot * CN
     terms = [(kern.a_terms(points, count, lanes=lanes_a),
               kern.b_terms(tan_half, lanes=whole.count)) for kern in kernels]
-    dr.eval([a for a, _ in terms])  # every channel's N terms in one pass of the Nyström loop
+    # every channel's N terms: one pass of the Nyström loop, in the kernel
+    # that adds them into A (below)
     # each entry written once: an add to the zeros (a plain scatter would
     # launch the pending one to the same array first, a kernel per term)
     for c, (kern, (a_terms, b_terms)) in enumerate(zip(kernels, terms)):
