@@ -19,15 +19,28 @@ from ..core.capture import sample_rng, seed_offset
 from ..core.light_transport import first_blocker, point, scalar, vector
 from ..core.opaque import Divisor, opaque_scalar
 from .light_rays.directional import LightRays
-from .queries import EpipolarQueries, row_alpha, searchsorted_rows
+from .queries import EpipolarQueries, frame_memo, row_alpha, searchsorted_rows
 
 
-def sub_ray_gamma(rays: LightRays, k: int, seed: int):
+def sub_ray_gamma(rays: LightRays, k: int, seed: int, evaluated: bool = False):
     """(row, γ) of ``k`` stratified jittered sub-rays per light ray (§7),
     (n·d·k,) lanes in (row, light ray, sub-ray) order; ``k = 1``: the light
     ray's centre.  A sub-ray's random numbers are keyed by its lane in the
     whole frame (``rays.row_id``), so a subset of the rows draws the full
-    render's."""
+    render's.  ``evaluated``: evaluated once per light rays, ``k`` and
+    ``seed`` (for readers that gather from them: a point light's factor
+    and blockers read the same sub-rays)."""
+    if not evaluated:
+        return _sub_ray_gamma(rays, k, seed)
+
+    def make():
+        out = _sub_ray_gamma(rays, k, seed)
+        dr.eval(out)
+        return out
+    return frame_memo(rays, ("sub_ray_gamma", k, seed), make)
+
+
+def _sub_ray_gamma(rays: LightRays, k: int, seed: int):
     s, g, m = rays.lanes(k)
     if k == 1:
         xi = mi.Float(0.5)

@@ -77,7 +77,9 @@ def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:
     out = dr.zeros(mi.Float, n * d * C)
     lane = dr.arange(mi.UInt32, n * d)
     for c, v in enumerate(values):
-        dr.scatter(out, v, lane * C + c)
+        # each entry written once: an add to the zeros, all channels in one
+        # kernel (a plain scatter would launch the last one first)
+        dr.scatter_reduce(dr.ReduceOp.Add, out, v, lane * C + c)
     return mi.TensorXf(out, shape=(n, d, C))
 
 

@@ -35,7 +35,7 @@ def trace_local_blocker_angles(params, queries: EpipolarQueries, rays: LocalLigh
     lanes in (row, light ray, sub-ray) order; only the ``lit`` sub-rays are
     traced (the others carry no light: π)."""
     frame = queries.frame
-    s, gamma = sub_ray_gamma(rays, k, seed)
+    s, gamma = sub_ray_gamma(rays, k, seed, evaluated=True)
     idx = dr.arange(mi.UInt32, dr.width(s)) if lit is None else dr.compress(lit)
     out = dr.full(mi.Float, math.pi, dr.width(s))
     if dr.width(idx):

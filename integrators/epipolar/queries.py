@@ -264,15 +264,16 @@ _MEMO = weakref.WeakKeyDictionary()
 
 
 def frame_memo(queries, key: tuple, make):
-    """``make()``, made once per queries object and ``key`` (a tuple of a
-    name and the objects it was made from, compared by identity and held
-    with the value): what several stages of a frame read from the same
+    """``make()``, made once per queries object (or light rays) and ``key`` (a tuple of a
+    name, numbers, and the objects it was made from, compared by identity
+    and held with the value): what several stages of a frame read from the same
     queries -- a map, a frame-wide range -- is then one kernel, not one
     per reader."""
     memo = _MEMO.setdefault(queries, {})
-    ids = tuple(id(k) for k in key)
+    plain = (str, int, float, bool)
+    ids = tuple(k if isinstance(k, plain) else id(k) for k in key)
     hit = memo.get(ids)
-    if hit is not None and all(a is b for a, b in zip(hit[0], key)):
+    if hit is not None and all(a is b or isinstance(a, plain) for a, b in zip(hit[0], key)):
         return hit[1]
     value = make()
     memo[ids] = (key, value)
