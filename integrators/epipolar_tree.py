@@ -21,7 +21,7 @@ from .epipolar.last_interval import (last_interval_correction, last_interval_vis
                                      sweep_magnitude, unresolved_samples)
 from .epipolar.light_models import light_model
 from .epipolar.light_rays.layout import rectified_depth
-from .epipolar.queries import gather_queries
+from .epipolar.queries import beta_map, gather_queries
 from .epipolar.query_terms import assemble_queries, first_leaf_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -284,6 +284,8 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             rays = model.light_rays(params, queries, self.light_rays, cap)
             L, colour, lit = model.light_factor(params, queries, rays, self.prefilter)
             D = rectified_depth(queries, rays)
+            dr.schedule(D.array)
+            beta_map(queries)       # the blockers' map of the queries' β, with D
             keep.extend([D.array, L.array])
         return LightSide(rays, L, colour, lit, D)
 

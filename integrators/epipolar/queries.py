@@ -280,9 +280,11 @@ def frame_memo(queries, key: tuple, make):
     return value
 
 
-def _padded_beta(queries) -> mi.Float:
+def beta_map(queries) -> mi.Float:
     """``queries.padded(queries.beta, PAD_BETA)``, evaluated once per
-    queries object (every search of a frame reads the same map)."""
+    queries object (every search of a frame reads the same map; a caller
+    with other maps of the queries to evaluate schedules them first: one
+    kernel)."""
     def make():
         out = queries.padded(queries.beta, PAD_BETA)
         dr.eval(out)
@@ -298,7 +300,7 @@ def searchsorted_rows(queries: EpipolarQueries, s, x, lo=None, hi=None) -> mi.UI
     """Number of queries of row ``s`` with β ≤ ``x`` (per lane); with
     ``lo``/``hi``: known to lie in [lo, hi] (a per-lane bisection that ends
     at once where lo = hi)."""
-    beta_pad = _padded_beta(queries)
+    beta_pad = beta_map(queries)
     r = opaque_scalar(mi.UInt32, queries.r)
     base = s * r
 

@@ -16,7 +16,7 @@ light's §9 kernel is :class:`integrators.epipolar.kernel.local.LocalSeparation`
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
@@ -25,7 +25,7 @@ import numpy as np
 from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains, lowest_light_side
 from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
-from .table import nystrom_sums, tabulated_terms
+from .table import nystrom_sums, tabulated_terms, term_table
 
 
 # --------------------------------------------------------------------------
@@ -233,21 +233,39 @@ class SeparatedChannel:
 class DirectionalChannel(SeparatedChannel):
     """One colour channel of K = e^{-σt γ tan(β/2)}, separated
     (:func:`separate_channel`), with its Dr.Jit terms (:func:`exp_kernel_sum`,
-    tabulated)."""
+    tabulated: both tables made together, once per channel)."""
     sigma_t: float
     gamma_max: float
+    _tables: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def _a_sums(self, x):
+        return exp_kernel_sum(x, self.x_grid, self.WA, self.sigma_t)
+
+    def _b_sums(self, x):
+        return exp_kernel_sum(x, self.gamma_grid, self.WB, self.sigma_t)
+
+    def tables(self) -> dict:
+        """The a and b tables (:func:`~integrators.epipolar.kernel.table.term_table`),
+        evaluated together when the first is asked for."""
+        if not self._tables:
+            st = self.sigma_t
+            a = term_table(0.0, self.gamma_max, st * float(np.max(self.x_grid)), self._a_sums)
+            b = term_table(self.x_lo, self.x_hi, st * self.gamma_max, self._b_sums)
+            dr.eval(*a.values, *b.values)
+            self._tables.update(a=a, b=b)
+        return self._tables
 
     def a_terms(self, gamma, count: int, lanes: int | None = None) -> list:
         """a_i at light-ray coordinates ``gamma``."""
         st = self.sigma_t
         return tabulated_terms(gamma, 0.0, self.gamma_max, st * float(np.max(self.x_grid)),
-                               lambda x: exp_kernel_sum(x, self.x_grid, self.WA, st), lanes)
+                               self._a_sums, lanes, table=lambda: self.tables()["a"])
 
     def b_terms(self, tan_half, lanes: int | None = None) -> list:
         """b_i at the queries' tan(β/2)."""
         st = self.sigma_t
         return tabulated_terms(tan_half, self.x_lo, self.x_hi, st * self.gamma_max,
-                               lambda x: exp_kernel_sum(x, self.gamma_grid, self.WB, st), lanes)
+                               self._b_sums, lanes, table=lambda: self.tables()["b"])
 
 
 class DirectionalSeparation:
