@@ -19,7 +19,7 @@ anti-epipole), with the phase at the interval's e^{-E}-weighted centroid
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
@@ -173,12 +173,6 @@ class Angles:
 
     def gather(self, k) -> "Angles":
         return Angles(*(dr.gather(mi.Float, v, k) for v in (self.tan_half, self.sin, self.cos)))
-
-    def evaluated(self) -> "Angles":
-        """These, evaluated together (a loop gathering from them would
-        evaluate each on its own)."""
-        dr.eval(self.tan_half, self.sin, self.cos)
-        return self
 
 
 def _exponential_moments(u):
@@ -387,12 +381,22 @@ class LocalChannel(SeparatedChannel):
     (:func:`~integrators.epipolar.kernel.table.nystrom_sums` of :class:`LocalKernel`)."""
     kernel: LocalKernel
     c_b: float              # the b-table's warp rate σt L (γ_hi − γ_lo)
+    _grids: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def grids(self) -> tuple:
+        """(β grid, γ grid) as :class:`Angles`, evaluated together once."""
+        if not self._grids:
+            b = Angles.from_tan_half(floats(self.x_grid))
+            g = Angles.of(floats(self.gamma_grid))
+            dr.eval(b.tan_half, b.sin, b.cos, g.tan_half, g.sin, g.cos)
+            self._grids.update(b=b, g=g)
+        return self._grids["b"], self._grids["g"]
 
     def a_terms(self, cells, count: int, lanes: int | None = None) -> list:
         """The mean of a_i over each lattice cell, ``cells = (bounds, Δγ)``
         (:func:`interval_bounds`)."""
         bounds, delta = cells
-        b_grid = Angles.from_tan_half(floats(self.x_grid)).evaluated()
+        b_grid = self.grids()[0]
         return nystrom_sums(count, self.WA,
                             lambda k: self.kernel.cell_mean(b_grid.gather(k), bounds, delta))
 
@@ -400,7 +404,7 @@ class LocalChannel(SeparatedChannel):
         """b_i at the queries' tan(β/2): it depends on β alone, so it is
         tabulated in tan(β/2) with the SVD grid's warp (``lanes``:
         :func:`~integrators.epipolar.kernel.table.tabulated_terms`)."""
-        g_grid = Angles.of(floats(self.gamma_grid)).evaluated()
+        g_grid = self.grids()[1]
 
         def b_sums(x):
             b = Angles.from_tan_half(x)

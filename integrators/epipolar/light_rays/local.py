@@ -255,5 +255,12 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     t_near, t_far = medium_interval(params, mi.Point3f(point(frame.light_position)), w)
     rays = replace(rays, r_in=dr.select(t_far >= dr.maximum(t_near, 0.0),
                                         dr.maximum(t_near, 0.0), dr.inf))
-    dr.eval(rays.r_in)
+    # with r_in, the smallest finite light-side path L − r_in, kept for the
+    # frame (what epipolar.light_factor.lowest_light_side reads)
+    path = scalar(frame.light_distance) - rays.r_in
+    finite = dr.select(dr.isfinite(path), path, dr.inf)
+    dr.eval(rays.r_in, finite)
+    lowest = float(dr.min(finite)[0]) if dr.width(finite) else math.inf
+    frame_memo(queries, ("lowest_light_side", rays),
+               lambda: None if lowest == math.inf else lowest)
     return rays
