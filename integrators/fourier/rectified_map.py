@@ -67,6 +67,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.opaque import Divisor, opaque_scalar, scalar_u32, two_or_more
+from ..epipolar.queries import frame_memo
 from ..epipolar.query_terms import cell_average
 from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
 
@@ -82,12 +83,17 @@ MIN_SPAN = 1e-7
 # --------------------------------------------------------------------------
 
 def query_beta_range(queries):
-    """(β_lo, β_hi) per row: the smallest and largest β of its queries."""
-    lo = dr.full(mi.Float, dr.inf, queries.n)
-    hi = dr.full(mi.Float, -dr.inf, queries.n)
-    dr.scatter_reduce(dr.ReduceOp.Min, lo, queries.beta, queries.row)
-    dr.scatter_reduce(dr.ReduceOp.Max, hi, queries.beta, queries.row)
-    return lo, hi
+    """(β_lo, β_hi) per row: the smallest and largest β of its queries,
+    evaluated once per frame's queries (the map, the references and the
+    sums read them)."""
+    def make():
+        lo = dr.full(mi.Float, dr.inf, queries.n)
+        hi = dr.full(mi.Float, -dr.inf, queries.n)
+        dr.scatter_reduce(dr.ReduceOp.Min, lo, queries.beta, queries.row)
+        dr.scatter_reduce(dr.ReduceOp.Max, hi, queries.beta, queries.row)
+        dr.eval(lo, hi)
+        return lo, hi
+    return frame_memo(queries, ("query_beta_range",), make)
 
 
 def reference_angle(beta_lo, beta_hi, how: str = "bisectrix"):
@@ -178,13 +184,13 @@ def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> R
     lo_t, hi_t = dr.gather(mi.Float, lo, s), dr.gather(mi.Float, hi, s)
     in_view = beta_b < hi_t                     # shadows some query of the row
     if depth_range == "slice":
-        span = dr.maximum(hi - lo, MIN_SPAN)
-        scale = 0.5 / span
+        def scale(rows):        # 0.5 / the row's span, where it is read (no kernel)
+            return 0.5 / dr.maximum(dr.gather(mi.Float, hi, rows) - dr.gather(mi.Float, lo, rows),
+                                    MIN_SPAN)
         series = in_view & (beta_b >= lo_t)
         lit = ~in_view
-        z = (beta_b - lo_t) * dr.gather(mi.Float, scale, s)
-        z_r = (queries.beta - dr.gather(mi.Float, lo, queries.row)) * \
-            dr.gather(mi.Float, scale, queries.row)
+        z = (beta_b - lo_t) * scale(s)
+        z_r = (queries.beta - dr.gather(mi.Float, lo, queries.row)) * scale(queries.row)
         z_r = dr.clip(z_r, 0.0, 0.5)
     else:
         blocked_row = _row_any(in_view, n, d)
@@ -192,25 +198,46 @@ def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> R
         lit = ~series
         z = dr.minimum(beta_b, math.pi) * (1.0 / math.pi)
         z_r = queries.beta * (1.0 / math.pi)
-    filtered = _row_any(series, n, d)
-    z = _fill_non_series(z, series, n, d)
+    # the rows' series counts and smallest series depths in one kernel,
+    # then the rows filtered and their numbers in one more
+    count, z_min = _row_count(series, n, d), _row_min(series, z, n, d)
+    dr.eval(count, z_min)
+    filtered = count > 0
+    z = _fill_non_series(z, series, z_min, n, d)
+    ones = dr.select(filtered, mi.UInt32(1), mi.UInt32(0))
+    dr.schedule(ones)
     rows = dr.compress(filtered)
-    frow = dr.prefix_sum(dr.select(filtered, mi.UInt32(1), mi.UInt32(0)))   # exclusive
+    frow = dr.prefix_sum(ones)   # exclusive
     smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow)
     dr.eval(smap.z, smap.series, smap.lit, smap.z_r, smap.filtered, smap.frow)
     return smap
 
 
+def _row_count(mask, n: int, d: int) -> mi.UInt32:
+    """Per row of ``d`` texels: how many are in ``mask`` (added by the
+    kernel that makes the mask)."""
+    count = dr.zeros(mi.UInt32, n)
+    dr.scatter_reduce(dr.ReduceOp.Add, count, dr.select(mask, mi.UInt32(1), mi.UInt32(0)),
+                      _texel_rows(n, d))
+    return count
+
+
 def _row_any(mask, n: int, d: int) -> mi.Bool:
-    count = dr.block_reduce(dr.ReduceOp.Add, dr.select(mask, mi.UInt32(1), mi.UInt32(0)), d)
-    return count > 0
+    return _row_count(mask, n, d) > 0
 
 
-def _fill_non_series(z, series, n: int, d: int) -> mi.Float:
-    """Non-series texels take the row's smallest series depth (0 if none)."""
-    z_min = dr.block_reduce(dr.ReduceOp.Min, dr.select(series, z, dr.inf), d)
-    z_min = dr.select(dr.isfinite(z_min), z_min, 0.0)
-    return dr.select(series, z, dr.gather(mi.Float, z_min, _texel_rows(n, d)))
+def _row_min(series, z, n: int, d: int) -> mi.Float:
+    """Per row: the smallest series depth (inf if none)."""
+    z_min = dr.full(mi.Float, dr.inf, n)
+    dr.scatter_reduce(dr.ReduceOp.Min, z_min, dr.select(series, z, dr.inf), _texel_rows(n, d))
+    return z_min
+
+
+def _fill_non_series(z, series, z_min, n: int, d: int) -> mi.Float:
+    """Non-series texels take the row's smallest series depth ``z_min``
+    (:func:`_row_min`; 0 if none)."""
+    fill = dr.gather(mi.Float, z_min, _texel_rows(n, d))
+    return dr.select(series, z, dr.select(dr.isfinite(fill), fill, 0.0))
 
 
 # --------------------------------------------------------------------------
