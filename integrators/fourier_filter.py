@@ -23,13 +23,11 @@ from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
                                       projective_query_terms, texel_separated_kernel)
 from .fourier.quality import FILTER_RULE
 from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
-                                    class_and_total_sums,
-                                    near_band, near_step_weight, prefilter_rows,
-                                    rectified_shadow_map, series_sum, series_unreliable,
-                                    series_visibility)
+                                    class_and_total_sums, near_band, near_step_weight,
+                                    prefilter_rows, rectified_shadow_map, series_sum,
+                                    series_unreliable, series_visibility)
 from .fourier.references import interpolated_sum, reference_rays, restrict_rows, row_kernel
-from .fourier.rows import (ProjectivePlan, auto_texels, projective_plan, row_spacing,
-                           texel_size)
+from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
                            row_shift, unshadowed_band)
 from .fourier.tail import tail_visibility

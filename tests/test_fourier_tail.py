@@ -58,9 +58,10 @@ def test_tail_correction_replaces_the_map_on_the_runs():
     idx = np.nonzero(first != NO_RUN)[0]
     rng = np.random.default_rng(3)
     V = (rng.random(len(idx) * 8) < 0.5).astype(np.float32)
-    base = np.zeros(len(row), np.uint32)
-    base[idx] = np.arange(len(idx)) * 8
-    tail = TailVisibility(mi.UInt32(first), mi.UInt32(base), mi.Float(V), len(idx), 8,
+    rank = np.zeros(len(row), np.uint32)       # each traced query's rank: its slots from 8·rank
+    rank[idx] = np.arange(len(idx))
+    base = rank * 8
+    tail = TailVisibility(mi.UInt32(first), mi.UInt32(rank), mi.Float(V), len(idx), 8,
                           mi.UInt32(idx))
     w = rng.uniform(0.1, 2.0, n * d).astype(np.float32)
     got = np.asarray(tail.correction(q, cover, mi.Float(bb.ravel()), mi.Float(w)))

@@ -21,6 +21,7 @@ import pytest
 
 from episcatter.kernels import kernel_log, literal_changes
 
+
 T = mi.ScalarTransform4f
 W, H = 24, 18
 INTEGRATORS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
@@ -135,3 +136,32 @@ def test_literal_changes_names_the_literal_that_moved():
     assert b.compiled == 1 and len(changes) == 1
     _, diff = changes[0]
     assert diff == [(v1, v2)]
+
+
+def test_a_failed_render_leaves_nothing_for_the_next_frame(monkeypatch):
+    """A render that fails after scheduling work (a stage that raises) does
+    not leave it to be joined to the next render's kernels: the frame
+    after it runs the kernels of every other frame (a kernel joined with
+    the leftover would be one the frame after compiles again)."""
+    import integrators.raymarch as rm
+    scene = _scene("directional", 0.0, 0.3, 0.4)
+    integrator = mi.load_dict({"type": "raymarch"})
+    size = scene.sensors()[0].film().crop_size()
+    lanes = int(size[0]) * int(size[1])
+    _frame(scene, integrator)
+    _frame(scene, integrator)
+
+    held = []           # what the failed render still references (a traceback's locals)
+
+    def failing(*args, **kw):
+        # work of the frame's own width: the next frame's kernels of that width would take it
+        held.append(dr.arange(mi.Float, lanes) * 3.0)
+        dr.schedule(held[-1])
+        raise RuntimeError("a stage failed")
+    with monkeypatch.context() as m:
+        m.setattr(rm.RaymarchIntegrator, "scattering", failing)
+        with pytest.raises(RuntimeError, match="a stage failed"):
+            integrator.render_layers(scene, spp=1)
+    after = _frame(scene, integrator)
+    again = _frame(scene, integrator)
+    assert [k.get("hash") for k in after.entries] == [k.get("hash") for k in again.entries]

@@ -101,7 +101,7 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
     num, den = list(state[2:2 + C]), list(state[2 + C:])
     if tail is not None:     # the traced end runs instead of the map there
         def kernel_at(t, q):
-            tq = dr.gather(mi.Float, tan, q)
+            tq = dr.tan(0.5 * dr.gather(mi.Float, beta, q))    # tan, where read (no kernel)
             if not geometric:
                 return kernel(t, tq)
             r = dr.gather(mi.UInt32, row, q)

@@ -28,8 +28,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from rectify.projective import (ProjectiveColumns, ProjectiveRows, auto_splits,
-                                projective_columns)
+from rectify.projective import ProjectiveColumns, ProjectiveRows, auto_splits, projective_columns
 
 from ..core.light_transport import color, segment_weight
 from ..core.opaque import Divisor, floats, scalar, scalar_u32
@@ -78,13 +77,17 @@ class ProjectiveLightRays(LightRayLayout):
         column space* (0: its start, 1: its end, 0.5: the light ray through
         the texel's centre, the middle in 1/x), (n·d,) lanes."""
         s, g, _ = self.lanes()
+        return s, self.position(s, g, offset)
+
+    def position(self, s, g, offset: float = 0.5) -> mi.Float:
+        """γ of texel ``g`` of rows ``s`` at ``offset`` (as :meth:`positions`)."""
         if offset in (0.0, 1.0):
             x = dr.gather(mi.Float, self.x_edges, g + int(offset))
         else:
             a = dr.rcp(dr.gather(mi.Float, self.x_edges, g))
             b = dr.rcp(dr.gather(mi.Float, self.x_edges, g + 1))
             x = dr.rcp(dr.lerp(a, b, offset))
-        return s, dr.gather(mi.Float, self.inv_cos, s) * x
+        return dr.gather(mi.Float, self.inv_cos, s) * x
 
     def widths(self) -> mi.Float:
         """(n·d,) γ-width of every texel."""

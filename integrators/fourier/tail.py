@@ -58,8 +58,9 @@ NO_RUN = 0xFFFFFFFF
 @dataclass(eq=False)
 class TailVisibility:
     """The traced runs: ``first`` (Q,) the first texel (row-local) of each
-    query's traced run, ``NO_RUN`` where none; ``base`` (Q,) its offset in
-    ``V``; ``V`` the traced visibility (1/0) of every run texel;
+    query's traced run, ``NO_RUN`` where none; ``base`` (Q,) its rank among
+    the traced queries (its slots of ``V`` start at ``base · slots``; any
+    value where none); ``V`` the traced visibility (1/0) of every run texel;
     ``traced``: how many queries were traced."""
     first: mi.UInt32
     base: mi.UInt32
@@ -101,7 +102,7 @@ class TailVisibility:
         f = dr.gather(mi.Float, frac, q)
         b = dr.gather(mi.Float, beta, q)
         first = dr.gather(mi.UInt32, self.first, q)
-        base = dr.gather(mi.UInt32, self.base, q)
+        base = dr.gather(mi.UInt32, self.base, q) * scalar_u32(self.slots)
         total = dr.zeros(mi.Float, dr.width(q))
         for i in range(self.slots):
             t = row0 + first + i
@@ -163,6 +164,8 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
         return None
     first, k0 = tail_runs(queries, beta_b, cover, longest)
     run = first != NO_RUN
+    ones = mi.UInt32(run)
+    dr.schedule(first, k0, cover.texel, cover.frac, ones)   # with the runs' mask: one kernel
     idx = dr.compress(run)
     traced = dr.width(idx)
     if traced == 0:
@@ -173,8 +176,8 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
     # two equal runs, either of which its slot may name
     lanes = two_or_more(idx)
     per = Divisor(longest)          # slots per query (the frame's: opaque)
-    slot_of = dr.zeros(mi.UInt32, queries.count)
-    dr.scatter(slot_of, dr.arange(mi.UInt32, dr.width(lanes)) * per.d, lanes)
+    # a traced query's rank: its slots follow those of the traced queries before it
+    rank = dr.prefix_sum(ones)
     lane = dr.arange(mi.UInt32, dr.width(lanes) * longest)
     run, offset = per.divmod(lane)
     q = dr.gather(mi.UInt32, lanes, run)
@@ -188,4 +191,4 @@ def tail_visibility(params, cap, queries, rays, beta_b, cover,
     lit = own_ray_visibility(params, cap, queries, q, gamma, TAIL_EPS, active=used)
     V = dr.select(used & lit, 1.0, 0.0)
     dr.eval(V)
-    return TailVisibility(first, slot_of, V, traced, longest, idx)
+    return TailVisibility(first, rank, V, traced, longest, idx)

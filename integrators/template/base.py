@@ -509,6 +509,15 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         dr.set_expand_threshold(SCATTER_EXPAND_THRESHOLD)
         try:
             yield record
+        except BaseException:
+            # what the failed render left scheduled (or scattered) is
+            # evaluated now: joined to the next render's first kernel it
+            # would make that kernel one the next frame compiles again
+            try:
+                dr.eval()
+            except Exception:
+                pass
+            raise
         finally:
             dr.set_expand_threshold(expand)
             dr.set_flag(dr.JitFlag.KernelHistory, history)
@@ -560,6 +569,11 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         layers = self.render_layers(scene, sensor, seed, spp)
         develop_into_film(sensor_of(scene, sensor).film(), layers, self.output,
                           self.aov_names())
+        # the film's storage written now, in this frame (left pending, the
+        # write would wait for, and join, the next frame's first kernel)
+        dr.eval()
+        if evaluate:
+            dr.eval(layers[self.output])
         return layers[self.output]
 
     def to_string(self):

@@ -45,6 +45,11 @@ class LightRayLayout:
         interval (0.5: its centre, 0: its start), (n·d,) lanes."""
         raise NotImplementedError
 
+    def position(self, s, g, offset: float = 0.5) -> mi.Float:
+        """γ of light ray ``g`` of rows ``s`` (per lane) at ``offset``, as
+        :meth:`positions` gives it at lane ``s·d + g``."""
+        raise NotImplementedError
+
     def row_counts(self):
         """(n,) light rays that exist per row, or None: all ``d``."""
         return None
