@@ -241,5 +241,6 @@ class EpipolarIntegrator(EpiscatterIntegrator):
             remarch = union_samples(queries.n_samples, remarch, *asked)
             values = remarch_samples(params, cap, queries, values, remarch, self.ring_steps,
                                      self.ring_bisections)
-            keep.append(values)
+            # the marched samples are evaluated here; the values they replace
+            # are read by the kernel that sums the queries into their samples
         return values
