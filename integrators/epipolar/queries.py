@@ -18,7 +18,7 @@ from rectify.slices import Slices, alpha_to_slice
 
 from ..core.capture import CameraCapture
 from ..core.light_transport import point
-from ..core.opaque import floats, opaque_scalar
+from ..core.opaque import floats, opaque_scalar, uints
 from .frame import PAD_BETA, in_ring
 
 
@@ -174,19 +174,21 @@ def _slice_counts(slices: Slices, k: mi.UInt32) -> mi.UInt32:
 
 
 def _rows(slices: Slices, k: mi.UInt32, counts: mi.UInt32):
-    """(slice_index, r_count, row, col) of queries already sorted by slice
-    ``k`` (``counts``: :func:`_slice_counts`): the non-empty slices become
-    rows 0..n-1, col = rank in the row."""
-    used = counts > 0
-    ones = dr.select(used, mi.UInt32(1), mi.UInt32(0))
-    dr.schedule(ones)                    # one kernel with the compression's mask
-    slice_index = dr.compress(used)
-    row_of_slice = dr.prefix_sum(ones)   # exclusive
-    r_count = dr.gather(mi.UInt32, counts, slice_index)
+    """(slice_index, r_count, row, col, widest) of queries already sorted by
+    slice ``k`` (``counts``: :func:`_slice_counts`, evaluated): the
+    non-empty slices become rows 0..n-1, col = rank in the row; ``widest``
+    the most queries of a row.  The per-slice bookkeeping (a few thousand
+    entries) is done on the host from one copy of the counts, where a
+    compression would read its width back anyway."""
+    c = np.asarray(counts, np.uint32)
+    used = c > 0
+    slice_index = np.flatnonzero(used)
+    row_of_slice = uints(np.cumsum(used) - used)              # exclusive
     # a row's first query: the queries of the slices before (empty ones add 0)
-    begin = dr.prefix_sum(counts)
+    begin = uints(np.cumsum(c, dtype=np.uint64) - c)
     col = dr.arange(mi.UInt32, dr.width(k)) - dr.gather(mi.UInt32, begin, k)
-    return slice_index, r_count, dr.gather(mi.UInt32, row_of_slice, k), col
+    return (slice_index, uints(c[used]), dr.gather(mi.UInt32, row_of_slice, k), col,
+            int(c.max()) if c.size else 0)
 
 
 def _no_queries(frame, slices, ring_sample, n_samples) -> EpipolarQueries:
@@ -240,14 +242,13 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     k, b = dr.gather(mi.UInt32, k, order), dr.gather(mi.Float, b, order)
     if weight is not None:
         weight = dr.gather(mi.Float, weight, order)
-    slice_index, r_count, row, col = _rows(slices, k, counts)
+    slice_index, r_count, row, col, widest = _rows(slices, k, counts)
     pinhole = mi.Point3f(point(params.camera.origin))
     t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
     gamma_end = end_gamma(frame, b, t_near + dr.gather(mi.Float, cap.d, sample))
-    alpha_rows = dr.gather(mi.Float, floats(slices.alpha), slice_index)
-    # the widest row: the fullest slice (counts are evaluated: no kernel)
-    q = EpipolarQueries(frame, slices, dr.width(slice_index), int(dr.max(counts)[0]),
-                        slice_index, alpha_rows, r_count, sample, row, col, b, gamma_end,
+    alpha_rows = floats(np.asarray(slices.alpha)[slice_index])
+    q = EpipolarQueries(frame, slices, len(slice_index), widest,
+                        uints(slice_index), alpha_rows, r_count, sample, row, col, b, gamma_end,
                         t_near, ring_sample, n_samples, weight, dr.width(idx) / n_idx)
     # each row's largest γ_end (the light rays' reach), with the queries
     gamma_end_max = dr.zeros(mi.Float, q.n)

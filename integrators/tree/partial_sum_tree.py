@@ -386,11 +386,15 @@ def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w
         g += 1
 
 
-def _termination_lists(p: _Problem, slices: jt.Int) -> _Updates:
+def _termination_lists(p: _Problem, slices: jt.Int, counts: np.ndarray) -> _Updates:
+    """``counts``: every slice's acting modes (host copy of ``p.updates``);
+    ``slices``: those with a tree."""
+    rows = np.asarray(slices, np.int64)
     # the slices without modes hold none: offsets over all slices, read at these
-    begin = dr.gather(jt.Int, dr.prefix_sum(p.updates), slices)
-    end = begin + dr.gather(jt.Int, p.updates, slices)
-    total = int(dr.sum(p.updates)[0])
+    offsets = np.cumsum(counts, dtype=np.int64) - counts
+    begin = jt.Int(aligned(offsets[rows], np.int32))
+    end = jt.Int(aligned(offsets[rows] + counts[rows], np.int32))
+    total = int(counts.sum())
     gamma, beta = dr.zeros(jt.Int, max(total, 1)), dr.zeros(jt.Int, max(total, 1))
     weight = dr.zeros(jt.Float, max(total, 1))
     # Scatter targets must be real buffers before the symbolic loop: a
@@ -487,8 +491,8 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
         beta += 1
 
 
-def _run_tree(p: _Problem, slices: jt.Int, out: jt.Float):
-    upd = _termination_lists(p, slices)
+def _run_tree(p: _Problem, slices: jt.Int, counts: np.ndarray, out: jt.Float):
+    upd = _termination_lists(p, slices, counts)
     leaf_size = _local_size(p.lay.d)
     per_leaf = (LOCAL_BUDGET - leaf_size) // (p.lay.d + 1)
     if per_leaf < 1:
@@ -585,13 +589,14 @@ def integrate_slices(D, S_modes, A, B, *, L=None, r_count=None, d_count=None,
     p = _prepare(D, S_modes, A, B, L, r_count, d_count)
     out = dr.zeros(jt.Float, lay.n * lay.r * lay.C)
     dr.make_opaque(out)                  # scatter target (see _termination_lists)
-    needs_tree = (p.updates > 0) if skip_unblocked else dr.full(dr.mask_t(jt.Int), True, lay.n)
-    free = ~needs_tree
-    dr.schedule(free)                    # both masks in one kernel
-    tree_slices = jt.Int(dr.compress(needs_tree))
-    free_slices = jt.Int(dr.compress(free))
+    # which slices need the tree: from one host copy of the counts (a
+    # compression would read its width back anyway)
+    counts = np.asarray(p.updates, np.int64)
+    needs_tree = counts > 0 if skip_unblocked else np.ones(lay.n, bool)
+    tree_slices = jt.Int(aligned(np.flatnonzero(needs_tree), np.int32))
+    free_slices = jt.Int(aligned(np.flatnonzero(~needs_tree), np.int32))
     if dr.width(tree_slices):
-        _run_tree(p, tree_slices, out)
+        _run_tree(p, tree_slices, counts, out)
     if dr.width(free_slices):
         _run_closed_form(p, free_slices, out)
     return jt.TensorXf(out * jt.Float(delta_gamma), shape)
