@@ -401,7 +401,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 keep.extend([U, V])
             return U, V, None
         with self.stage("evaluate") as keep:
-            U = parts.unshadowed(cover)
+            U = parts.unshadowed(cover, queries)
             keep.append(U)
         refs = None
         if self.weights == "reference_ray":

@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import Divisor, scalar_u32
+from ..core.opaque import Divisor, scalar_u32, uints
 from ..epipolar.last_interval import LastInterval
 from ..epipolar.light_rays.directional import LightRays
 from .rectified_map import Coverage, query_beta_range, reference_angle
@@ -53,8 +53,12 @@ class KernelParts:
     A_n (n·d) per light ray (directional: at its start; point/spot: its
     interval's mean), B_n (Q) at every query's β."""
 
-    def __init__(self, L, A, B):
+    def __init__(self, L, A, B, terms=None):
         self.L, self.A, self.B = L, A, B
+        #: (A array, B array, stride, offsets): where the used components
+        #: lie in A (n·d·C·N) and B (n·r·C·N) -- for sums over all of them
+        #: in kernels that do not depend on their count
+        self.terms = terms
 
     @staticmethod
     def of(queries, rays, L, A, B, c: int) -> "KernelParts":
@@ -85,16 +89,44 @@ class KernelParts:
             b = dr.gather(mi.Float, B.array, queries.slot * stride + offset)
             A_c.append(dr.gather(mi.Float, A.array, lanes * stride + offset))
             B_c.append(b)
-        return KernelParts(L_c, A_c, B_c)
+        offsets = uints([c * N + i for i in range(N) if used[i]])
+        return KernelParts(L_c, A_c, B_c, (A.array, B.array, stride, offsets))
 
-    def unshadowed(self, cover: Coverage) -> mi.Float:
+    def unshadowed(self, cover: Coverage, queries=None) -> mi.Float:
         """U(β) = Σ_n B_n(β) Σ_γ L A_n cover: the query's sum without
-        blockers (the closed form of unblocked rows), accumulated one
-        evaluated component at a time: the same kernels for any rank."""
+        blockers (the closed form of unblocked rows).  With ``queries``
+        (and the parts' ``terms``): the components' L A_n stacked and
+        prefix-summed at once, and U summed over them in a loop -- two
+        kernels, the same for any rank; else one evaluated component at a
+        time.  The same sums either way (component by component, in
+        order; a stacked prefix sum sums each row's block as a lone one
+        does)."""
         U = dr.zeros(mi.Float, dr.width(cover.frac))
-        for a, b in zip(self.A, self.B):
-            U += b * cover.sum(self.L * a)
-            dr.eval(U)
+        if not self.A:
+            return U
+        if queries is None or self.terms is None:
+            for a, b in zip(self.A, self.B):
+                U += b * cover.sum(self.L * a)
+                dr.eval(U)
+            return U
+        A, B, stride, offsets = self.terms
+        count = dr.width(offsets)
+        size = dr.width(self.L)
+        per = Divisor(size)
+        comp, t = per.divmod(dr.arange(mi.UInt32, count * size))
+        stack = (dr.gather(mi.Float, self.L, t)
+                 * dr.gather(mi.Float, A, t * stride + dr.gather(mi.UInt32, offsets, comp)))
+        dr.eval(stack)
+        P = dr.block_prefix_sum(stack, cover.d, exclusive=True)
+        slot = queries.slot * stride
+        n_c = scalar_u32(count)
+
+        def body(i, U):
+            at = cover.texel + i * per.d
+            b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets, i))
+            return i + 1, U + b * (dr.gather(mi.Float, P, at)
+                                   + cover.frac * dr.gather(mi.Float, stack, at))
+        _, U = dr.while_loop(state=(mi.UInt32(0), U), cond=lambda i, U: i < n_c, body=body)
         return U
 
 
