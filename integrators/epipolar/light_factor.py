@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.light_transport import scalar
 from .light_rays.directional import LIGHT_SIDE_RANGE, LightRays
+from .light_rays.layout import LOWEST_LIGHT_SIDE
 from .queries import EpipolarQueries, frame_memo
 
 
@@ -28,7 +29,7 @@ def lowest_light_side(queries, rays, path: mi.Float) -> float | None:
         p = mi.Float(path)
         m = float(dr.min(dr.select(dr.isfinite(p), p, dr.inf))[0]) if dr.width(p) else math.inf
         return None if m == math.inf else m
-    return frame_memo(queries, ("lowest_light_side", rays), make)
+    return frame_memo(queries, (LOWEST_LIGHT_SIDE, rays), make)
 
 
 def light_side_gains(sigma_t, lowest: float | None) -> list[float]:

@@ -244,28 +244,31 @@ class DirectionalChannel(SeparatedChannel):
     def _b_sums(self, x):
         return exp_kernel_sum(x, self.gamma_grid, self.WB, self.sigma_t)
 
+    def _table_args(self, which: str) -> tuple:
+        """(lo, hi, c, terms_at) of the a or b table
+        (:func:`~integrators.epipolar.kernel.table.term_table`)."""
+        st = self.sigma_t
+        if which == "a":
+            return 0.0, self.gamma_max, st * float(np.max(self.x_grid)), self._a_sums
+        return self.x_lo, self.x_hi, st * self.gamma_max, self._b_sums
+
     def tables(self) -> dict:
-        """The a and b tables (:func:`~integrators.epipolar.kernel.table.term_table`),
-        evaluated together when the first is asked for."""
+        """The a and b tables, evaluated together when the first is asked for."""
         if not self._tables:
-            st = self.sigma_t
-            a = term_table(0.0, self.gamma_max, st * float(np.max(self.x_grid)), self._a_sums)
-            b = term_table(self.x_lo, self.x_hi, st * self.gamma_max, self._b_sums)
-            dr.eval(*a.values, *b.values)
-            self._tables.update(a=a, b=b)
+            tabs = {which: term_table(*self._table_args(which)) for which in "ab"}
+            dr.eval(*tabs["a"].values, *tabs["b"].values)
+            self._tables.update(tabs)
         return self._tables
 
     def a_terms(self, gamma, count: int, lanes: int | None = None) -> list:
         """a_i at light-ray coordinates ``gamma``."""
-        st = self.sigma_t
-        return tabulated_terms(gamma, 0.0, self.gamma_max, st * float(np.max(self.x_grid)),
-                               self._a_sums, lanes, table=lambda: self.tables()["a"])
+        return tabulated_terms(gamma, *self._table_args("a"), lanes,
+                               table=lambda: self.tables()["a"])
 
     def b_terms(self, tan_half, lanes: int | None = None) -> list:
         """b_i at the queries' tan(β/2)."""
-        st = self.sigma_t
-        return tabulated_terms(tan_half, self.x_lo, self.x_hi, st * self.gamma_max,
-                               self._b_sums, lanes, table=lambda: self.tables()["b"])
+        return tabulated_terms(tan_half, *self._table_args("b"), lanes,
+                               table=lambda: self.tables()["b"])
 
 
 class DirectionalSeparation:

@@ -16,7 +16,7 @@ from ...core.host_reads import host_reductions
 from ...core.light_transport import medium_interval, scalar, vector
 from ...core.opaque import opaque_scalar
 from ..queries import EpipolarQueries, frame_memo, row_alpha
-from .layout import EqualLightRays
+from .layout import EqualLightRays, keep_lowest_light_side
 
 
 #: most light rays per slice the automatic choice takes
@@ -157,8 +157,7 @@ def light_side_step_and_lowest(params, queries: EpipolarQueries, rays: LightRays
     h = mi.Float(rays.h)
     step, lowest = host_reductions((dr.max, _step_lanes(params, rays)),
                                    (dr.min, dr.select(dr.isfinite(h), h, dr.inf)))
-    frame_memo(queries, ("lowest_light_side", rays),
-               lambda: None if lowest == math.inf else lowest)
+    keep_lowest_light_side(queries, rays, lowest)
     return step
 
 

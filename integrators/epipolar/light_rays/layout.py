@@ -3,10 +3,13 @@ every stage after the layout reads them (DESIGN §3).
 """
 from __future__ import annotations
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 
 from ...core.opaque import Divisor
+from ..queries import frame_memo
 
 
 # --------------------------------------------------------------------------
@@ -108,3 +111,15 @@ class EqualLightRays(LightRayLayout):
 
     def query_depth(self, queries) -> mi.Float:
         return dr.gather(mi.Float, rectified_depth(queries, self).array, queries.slot)
+
+
+#: :func:`~integrators.epipolar.queries.frame_memo` key of the smallest
+#: finite light-side path of a frame's light rays (None: none finite)
+LOWEST_LIGHT_SIDE = "lowest_light_side"
+
+
+def keep_lowest_light_side(queries, rays, lowest: float) -> None:
+    """Keep the smallest finite light-side path ``lowest`` (inf: none) of
+    ``rays``, found by the kernel that made them, for
+    :func:`~integrators.epipolar.light_factor.lowest_light_side`."""
+    frame_memo(queries, (LOWEST_LIGHT_SIDE, rays), lambda: None if lowest == math.inf else lowest)

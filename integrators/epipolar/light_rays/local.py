@@ -15,7 +15,7 @@ from ...core.host_reads import host_reductions
 from ...core.light_transport import medium_interval, point, scalar, vector
 from ..queries import EpipolarQueries, frame_memo
 from .directional import MIN_AUTO_LIGHT_RAYS, light_ray_count, row_gamma_end
-from .layout import EqualLightRays
+from .layout import EqualLightRays, keep_lowest_light_side
 
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
@@ -261,6 +261,5 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
     finite = dr.select(dr.isfinite(path), path, dr.inf)
     dr.eval(rays.r_in, finite)
     lowest = float(dr.min(finite)[0]) if dr.width(finite) else math.inf
-    frame_memo(queries, ("lowest_light_side", rays),
-               lambda: None if lowest == math.inf else lowest)
+    keep_lowest_light_side(queries, rays, lowest)
     return rays
