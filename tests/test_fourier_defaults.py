@@ -112,7 +112,7 @@ def _exact_inputs(name="sun_room", res=(24, 18)):
             tail=None, kernels=None):
         captured.update(params=params_, queries=queries_, rays=rays, cover=cover, L=parts.L,
                         sigma_t=sigma_t, beta_b=beta_b)
-        return parts.unshadowed(cover), dr.full(mi.Float, 1.0, queries_.count), None
+        return parts.unshadowed(cover, queries_), dr.full(mi.Float, 1.0, queries_.count), None
 
     integ.channel_sums = spy
     integ.rectified_sums(params, cap, queries)

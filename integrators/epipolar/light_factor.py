@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.light_transport import scalar
 from .light_rays.directional import LIGHT_SIDE_RANGE, LightRays
-from .light_rays.layout import LOWEST_LIGHT_SIDE
+from .light_rays.layout import LOWEST_LIGHT_SIDE, finite_or_inf, lowest_or_none
 from .queries import EpipolarQueries, frame_memo
 
 
@@ -22,13 +22,12 @@ def lowest_light_side(queries, rays, path: mi.Float) -> float | None:
     light's h, a point light's L − r_in; None: none finite), made once
     per frame's queries and rays (a directional light's automatic light
     rays find it with their light-side step,
-    :func:`~integrators.epipolar.light_rays.directional.light_side_step_and_lowest`):
+    :func:`~integrators.epipolar.light_rays.directional.light_side_step`):
     the SVD's tolerance (:func:`light_side_gains`) and the frame's choices
     read it."""
     def make():
         p = mi.Float(path)
-        m = float(dr.min(dr.select(dr.isfinite(p), p, dr.inf))[0]) if dr.width(p) else math.inf
-        return None if m == math.inf else m
+        return lowest_or_none(float(dr.min(finite_or_inf(p))[0]) if dr.width(p) else math.inf)
     return frame_memo(queries, (LOWEST_LIGHT_SIDE, rays), make)
 
 

@@ -92,22 +92,15 @@ class KernelParts:
         offsets = uints([c * N + i for i in range(N) if used[i]])
         return KernelParts(L_c, A_c, B_c, (A.array, B.array, stride, offsets))
 
-    def unshadowed(self, cover: Coverage, queries=None) -> mi.Float:
+    def unshadowed(self, cover: Coverage, queries) -> mi.Float:
         """U(β) = Σ_n B_n(β) Σ_γ L A_n cover: the query's sum without
-        blockers (the closed form of unblocked rows).  With ``queries``
-        (and the parts' ``terms``): the components' L A_n stacked and
-        prefix-summed at once, and U summed over them in a loop -- two
-        kernels, the same for any rank; else one evaluated component at a
-        time.  The same sums either way (component by component, in
-        order; a stacked prefix sum sums each row's block as a lone one
-        does)."""
+        blockers (the closed form of unblocked rows): the components' L A_n
+        stacked and prefix-summed at once, and U summed over them in a
+        loop (``queries``: theirs) -- two kernels, the same for any rank;
+        the sums of adding one component after another (a stacked prefix
+        sum sums each row's block as a lone one does)."""
         U = dr.zeros(mi.Float, dr.width(cover.frac))
         if not self.A:
-            return U
-        if queries is None or self.terms is None:
-            for a, b in zip(self.A, self.B):
-                U += b * cover.sum(self.L * a)
-                dr.eval(U)
             return U
         A, B, stride, offsets = self.terms
         count = dr.width(offsets)

@@ -572,8 +572,6 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         # the film's storage written now, in this frame (left pending, the
         # write would wait for, and join, the next frame's first kernel)
         dr.eval()
-        if evaluate:
-            dr.eval(layers[self.output])
         return layers[self.output]
 
     def to_string(self):

@@ -232,7 +232,7 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         (:func:`~integrators.epipolar.light_rays.local.cone_samples`, chosen on
         the whole frame so that a partial render marches what the full one
         does)."""
-        with self.stage("ring") as keep:
+        with self.stage("ring"):
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
             remarch = union_samples(queries.n_samples, remarch, cone_samples(params, queries))
             self.record(remarched=dr.width(remarch))

@@ -16,7 +16,7 @@ from ...core.host_reads import host_reductions
 from ...core.light_transport import medium_interval, scalar, vector
 from ...core.opaque import opaque_scalar
 from ..queries import EpipolarQueries, frame_memo, row_alpha
-from .layout import EqualLightRays, keep_lowest_light_side
+from .layout import EqualLightRays, finite_or_inf, keep_lowest_light_side
 
 
 #: most light rays per slice the automatic choice takes
@@ -100,7 +100,7 @@ def light_ray_grid(params, queries: EpipolarQueries, d: int = 0) -> LightRays:
         return with_box_exits(params, queries, rays)
     rays = grid(d)
     if auto:
-        step = light_side_step_and_lowest(params, queries, rays)
+        step = light_side_step(params, queries, rays)
         if step > LIGHT_SIDE_STEP and d < MAX_AUTO_LIGHT_RAYS:
             d = min(MAX_AUTO_LIGHT_RAYS, math.ceil(d * step / LIGHT_SIDE_STEP))
             rays = grid(d)
@@ -115,7 +115,7 @@ LIGHT_SIDE_STEP = 0.25
 LIGHT_SIDE_ARRIVES = 10.0
 
 
-def light_side_step(params, rays: LightRays) -> float:
+def light_side_step(params, queries: EpipolarQueries, rays: LightRays) -> float:
     """max σt·|h_{g+1} − h_g| over neighbouring light rays of a row that
     both meet the box and carry light (σt·(h − h_ref) ≤ ``LIGHT_SIDE_ARRIVES``):
     how much L(γ) = e^{-σt (h − h_ref)} changes across one light ray.
@@ -128,14 +128,14 @@ def light_side_step(params, rays: LightRays) -> float:
     midpoint value of L, and its covariance with the kernel over the
     interval, 2.5 % low (random stress seed 206; converging as 1/d²).
     :func:`light_ray_grid` takes as many more light rays as bring this
-    below ``LIGHT_SIDE_STEP``."""
+    below ``LIGHT_SIDE_STEP``.
+
+    The same kernel finds the smallest finite h of ``rays`` and keeps it
+    for the frame's ``queries`` and these rays (what
+    :func:`~integrators.epipolar.light_factor.lowest_light_side` reads of
+    h)."""
     if rays.d < 2:
         return 0.0
-    return float(dr.max(_step_lanes(params, rays))[0])
-
-
-def _step_lanes(params, rays: LightRays) -> mi.Float:
-    """σt·|h_{g+1} − h_g| per light ray where both arrive (else 0)."""
     sigma_t = scalar(np.max(params.medium.sigma_t))
     s, g, _ = rays.lanes()
     d = opaque_scalar(mi.UInt32, rays.d)
@@ -144,19 +144,8 @@ def _step_lanes(params, rays: LightRays) -> mi.Float:
     h_ref = dr.gather(mi.Float, rays.h_ref, s)
     arrives = sigma_t * (dr.maximum(h, h_n) - h_ref) <= LIGHT_SIDE_ARRIVES
     ok = (g + 1 < d) & dr.isfinite(h) & dr.isfinite(h_n) & arrives
-    return dr.select(ok, sigma_t * dr.abs(h_n - h), 0.0)
-
-
-def light_side_step_and_lowest(params, queries: EpipolarQueries, rays: LightRays) -> float:
-    """:func:`light_side_step`, and the smallest finite h of ``rays`` found
-    in the same kernel and kept for the frame's queries and these rays
-    (what :func:`~integrators.epipolar.light_factor.lowest_light_side`
-    reads of h)."""
-    if rays.d < 2:
-        return 0.0
-    h = mi.Float(rays.h)
-    step, lowest = host_reductions((dr.max, _step_lanes(params, rays)),
-                                   (dr.min, dr.select(dr.isfinite(h), h, dr.inf)))
+    step, lowest = host_reductions((dr.max, dr.select(ok, sigma_t * dr.abs(h_n - h), 0.0)),
+                                   (dr.min, finite_or_inf(h)))
     keep_lowest_light_side(queries, rays, lowest)
     return step
 

@@ -118,8 +118,19 @@ class EqualLightRays(LightRayLayout):
 LOWEST_LIGHT_SIDE = "lowest_light_side"
 
 
+def finite_or_inf(path) -> mi.Float:
+    """``path`` where finite, else +inf: its minimum is the smallest finite
+    light-side path (+inf: none)."""
+    return dr.select(dr.isfinite(path), path, dr.inf)
+
+
+def lowest_or_none(lowest: float) -> float | None:
+    """The minimum of :func:`finite_or_inf`, None where no path is finite."""
+    return None if lowest == math.inf else lowest
+
+
 def keep_lowest_light_side(queries, rays, lowest: float) -> None:
     """Keep the smallest finite light-side path ``lowest`` (inf: none) of
     ``rays``, found by the kernel that made them, for
     :func:`~integrators.epipolar.light_factor.lowest_light_side`."""
-    frame_memo(queries, (LOWEST_LIGHT_SIDE, rays), lambda: None if lowest == math.inf else lowest)
+    frame_memo(queries, (LOWEST_LIGHT_SIDE, rays), lambda: lowest_or_none(lowest))

@@ -15,7 +15,7 @@ from ...core.host_reads import host_reductions
 from ...core.light_transport import medium_interval, point, scalar, vector
 from ..queries import EpipolarQueries, frame_memo
 from .directional import MIN_AUTO_LIGHT_RAYS, light_ray_count, row_gamma_end
-from .layout import EqualLightRays, keep_lowest_light_side
+from .layout import EqualLightRays, finite_or_inf, keep_lowest_light_side
 
 
 #: widening of a spot cone's γ-interval [rad] (float32 fall-off at the edge)
@@ -257,8 +257,7 @@ def local_light_ray_grid(params, queries: EpipolarQueries, d: int = 0,
                                         dr.maximum(t_near, 0.0), dr.inf))
     # with r_in, the smallest finite light-side path L − r_in, kept for the
     # frame (what epipolar.light_factor.lowest_light_side reads)
-    path = scalar(frame.light_distance) - rays.r_in
-    finite = dr.select(dr.isfinite(path), path, dr.inf)
+    finite = finite_or_inf(scalar(frame.light_distance) - rays.r_in)
     dr.eval(rays.r_in, finite)
     lowest = float(dr.min(finite)[0]) if dr.width(finite) else math.inf
     keep_lowest_light_side(queries, rays, lowest)
