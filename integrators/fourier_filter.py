@@ -24,9 +24,10 @@ from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
 from .fourier.quality import FILTER_RULE
 from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                                     class_and_total_sums, near_band, near_step_weight,
-                                    prefilter_rows, rectified_shadow_map, series_sum,
+                                    prefilter_rows, product_weights, rectified_shadow_map,
+                                    series_sum, stacked_class_sums,
                                     series_unreliable, series_visibility)
-from .fourier.references import interpolated_sum, reference_rays, restrict_rows, row_kernel
+from .fourier.references import interpolated_sum, reference_rays, row_kernel
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
                            row_shift, unshadowed_band)
@@ -467,25 +468,28 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             return False
         return self.visibility == "exact" or light_model(params).direct_sum_by_default
 
-    def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None):
+    def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None,
+                 rows=None, lazy: bool = False):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
         evaluate the series visibility of every query (``evaluate``);
         ``band`` True: ``(V, drop)``, also the series' drop across the
         near-step band (:func:`~integrators.fourier.rectified_map.near_step_weight`);
-        False: ``(V, 0)``."""
+        False: ``(V, 0)``.  ``rows``: the rows to filter (others read
+        visibility 1; :func:`~integrators.fourier.rectified_map.prefilter_rows`);
+        ``lazy``: the visibility left for its reader's kernel."""
         opt = self.filter_settings
         with self.stage("prefilter") as keep:
-            fb = prefilter_rows(smap, w, opt)
+            fb = prefilter_rows(smap, w, opt, rows)
             if fb is not None:
                 keep.extend([fb.B_bar, fb.W])
         with self.stage("evaluate") as keep:
             if not band:
                 V = series_visibility(smap, fb, queries, cover, opt, clamp)
-                keep.append(V)
+                keep.extend([] if lazy else [V])
                 return V if band is None else (V, dr.zeros(mi.Float, queries.count))
             V, drop = series_visibility(smap, fb, queries, cover, opt, clamp,
                                         near_band(self.M))
-            keep.extend([V, drop])
+            keep.extend([] if lazy else [V, drop])
         return V, drop
 
     def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,
@@ -498,25 +502,30 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         (:meth:`~integrators.fourier.tail.TailVisibility.correction`);
         ``kernels``: reference ray k's kernel of this σt, kept for the other
         channels (:meth:`channel_sums`)."""
+        if ("kernels", sigma_t) not in kernels:
+            K = row_kernel(params, queries, rays, sigma_t, refs.beta, refs.count)
+            dr.eval(K)
+            kernels["kernels", sigma_t] = K
+        K = kernels["kernels", sigma_t]
+        size = dr.width(smap.lit)
+        # the weights multiplied where each reader gathers them: the
+        # filter, the class sums and the tail correction
+        w = [product_weights(L, K, k * size) for k in range(refs.count)]
+        sums = stacked_class_sums(smap, cover, L, K, refs.count)
+        corrections = ([tail.correction(queries, cover, beta_b, w_k) for w_k in w]
+                       if tail is not None else None)
+        dr.eval(corrections)    # the sums are gathered by each ray's kernel
+
         def weighted_sum(k, rows):
-            if ("kernel", sigma_t, k) not in kernels:
-                K = row_kernel(params, queries, rays, sigma_t, refs.beta[k])
-                dr.eval(K)
-                kernels["kernel", sigma_t, k] = K
-            # materialised once: the filter, the class sums, the unshadowed
-            # sum and the tail correction all read it
-            w = L * kernels["kernel", sigma_t, k]
-            dr.eval(w)
-            sub = smap if k < 2 else restrict_rows(smap, rows)
-            V_series, drop = self.filtered(queries, sub, cover, w, self.clamp,
-                                           band=self.exact_fallback)
-            lit, series, P = class_and_total_sums(smap, cover, w)
+            V_series, drop = self.filtered(queries, smap, cover, w[k], self.clamp,
+                                           band=self.exact_fallback, rows=rows, lazy=True)
+            lit, series, P = sums[k]
             S = lit + series * V_series
             if tail is not None:
-                S += tail.correction(queries, cover, beta_b, w)
+                S += corrections[k]
             return S, P, near_step_weight(series, drop)
 
-        S, P, near = interpolated_sum(refs, weighted_sum)
+        S, P, near = interpolated_sum(refs, weighted_sum, lambda: self.stage("evaluate"))
         return dr.select(P > 0.0, S / P, 1.0), S, P, near
 
     def filtered_average(self, queries, smap, cover, w, clamp: bool, beta_b=None, tail=None):

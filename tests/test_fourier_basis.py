@@ -7,6 +7,7 @@ the machine is shared.
 """
 import math
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -368,3 +369,30 @@ def test_average_visibility_reference_by_hand():
 def test_bench_filter_runs():
     r = fb_prefilter.bench_filter(n_rows=4, n=16, M=8, pixels=64, reps=1)
     assert r["prefilter_s"] > 0 and r["evaluate_s"] > 0 and math.isfinite(r["evaluate_s"])
+
+
+def test_prefix_filter_rows_bounds_and_weight_function():
+    """Weights given as a function of (row, texel), known region bounds and
+    a mask of the rows to filter: the filtered rows bit for bit those of
+    the plain call, the others zero (a weight sum of 0: visibility 1)."""
+    rng = np.random.default_rng(5)
+    n_rows, n, M, regions = 6, 29, 16, 2
+    z = rng.random((n_rows, n)).astype(F32)
+    w = rng.random((n_rows, n)).astype(F32)
+    w_flat = mi.Float(w.ravel())
+    plain = fb_prefilter.prefix_filter(mi.TensorXf(z), mi.TensorXf(w), M, regions)
+    bounds = fb_prefilter.region_depth_bounds(mi.TensorXf(z), regions)
+    keep = np.array([True, False, True, True, False, True])
+    for rows in (mi.Bool(keep), lambda r: dr.gather(mi.Bool, mi.Bool(keep), r)):
+        got = fb_prefilter.prefix_filter(
+            mi.TensorXf(z), lambda row, i: dr.gather(mi.Float, w_flat, row * n + i), M, regions,
+            bounds=bounds, rows=rows)
+        B, W = got.B_bar.numpy(), got.W.numpy()
+        np.testing.assert_array_equal(B[keep], plain.B_bar.numpy()[keep])
+        np.testing.assert_array_equal(W[keep], plain.W.numpy()[keep])
+        assert not B[~keep].any() and not W[~keep].any()
+        np.testing.assert_array_equal(got.z_lo.numpy(), plain.z_lo.numpy())
+        v = visibility(got, [1, 4, 0], [10.0, 20.0, 10.0], [0.9, 0.9, 0.9])
+        assert v[0] == 1.0 and v[1] == 1.0
+        assert v[2] == visibility(plain, [0], [10.0], [0.9])[0]
+

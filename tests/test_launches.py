@@ -18,6 +18,10 @@ MINMAX_LAUNCHES = 40
 #: directional scenes (its point and spot lights are far above)
 TREE_LAUNCHES = 60
 FILTER_DIRECTIONAL_LAUNCHES = 40
+#: ... and with a point or spot light (a regression guard: the issue's
+#: target is 40), where each reference ray adds two kernels a channel
+#: (its filter, its evaluation)
+FILTER_LOCAL_LAUNCHES = 130
 
 
 def _warm_log(scene, integ):
@@ -53,6 +57,20 @@ def test_a_warm_directional_filter_frame_launches_at_most_40_kernels(name):
     scene = c.load(c.scene_file(name), c.resolution(160, 120))
     log = _warm_log(scene, mi.load_dict({"type": "fourier_filter"}))
     assert log.launched <= FILTER_DIRECTIONAL_LAUNCHES, [k.get("size") for k in log.entries]
+
+
+@pytest.mark.parametrize("name", ["point_fog", "spot_room"])
+def test_a_local_filter_frame_launches_two_kernels_a_reference_ray(name):
+    """The reference rays' kernels, class sums and end-run corrections are
+    made together (kernels independent of their count); each ray adds its
+    filter and its evaluation, per colour channel (three at most)."""
+    scene = c.load(c.scene_file(name), c.resolution(160, 120))
+    counts = {}
+    for rays in (0, 2, 6):
+        integ = mi.load_dict({"type": "fourier_filter", "reference_rays": rays})
+        counts[rays] = _warm_log(scene, integ).launched
+    assert counts[0] <= FILTER_LOCAL_LAUNCHES, counts
+    assert counts[6] - counts[2] <= 2 * 4 * 3, counts
 
 
 @pytest.mark.parametrize("method", ["raymarch", "epipolar_tree", "minmax_epipolar"])

@@ -75,9 +75,12 @@ def _as_rows(z_rows) -> mi.TensorXf:
 
 
 def _weights_array(weights, n_rows: int, n: int):
-    """Flat weights and whether they are shared by all rows (shape (n,))."""
+    """Flat weights and whether they are shared by all rows (shape (n,));
+    a function of (row, texel) is passed through (per row)."""
     if weights is None:
         return None, True
+    if callable(weights):
+        return weights, False
     w = mi.TensorXf(weights)
     if w.shape == (n,):
         return w.array, True
@@ -116,12 +119,21 @@ def depth_map(z_lo, z_hi, fit_depth: bool):
 
 
 def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
-                  fit_depth: bool = False, half: bool = False) -> FilteredBasis:
+                  fit_depth: bool = False, half: bool = False, bounds=None,
+                  rows=None) -> FilteredBasis:
     """Weighted running prefix sums of the basis along every row (Listings 1–3).
 
     ``z_rows``: blocker depths ``(n_rows, n)`` in [0, 1]; ``weights``: ``None``
-    (uniform = average visibility, §3.1), ``(n,)`` (same for every row) or
-    ``(n_rows, n)`` (per-row transmittance / angular weights, §3.2).
+    (uniform = average visibility, §3.1), ``(n,)`` (same for every row),
+    ``(n_rows, n)`` (per-row transmittance / angular weights, §3.2) or a
+    function ``weights(row, i)`` of (n_rows·R·groups) lanes read in the
+    filter's loop (weights made from evaluated arrays: no texel array of
+    its own).  ``bounds``: ``(z_lo, z_hi)`` of :func:`region_depth_bounds`
+    of these ``z_rows`` and ``regions`` where known (the same rows filtered
+    with other weights).  ``rows``: ``None`` (all), an (n_rows,) mask of
+    the rows to filter or a function of row indices giving it; the others
+    keep ``B̄ = 0`` and ``W = 0`` (a weight sum of 0:
+    :func:`filtered_visibility` reads visibility 1 there).
 
     One Dr.Jit lane per (row, region, group of 16 bases) walks its texels left to
     right in a symbolic loop, computes the bases on the fly from the depth
@@ -134,7 +146,7 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     n_rows, n = z.shape
     L = region_length(n, regions)
     w_flat, shared_w = _weights_array(weights, n_rows, n)
-    z_lo, z_hi = region_depth_bounds(z, regions)
+    z_lo, z_hi = region_depth_bounds(z, regions) if bounds is None else bounds
 
     G = _group_size(M)
     groups = M // G
@@ -144,6 +156,9 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     n_o, L_o = opaque_scalar(mi.UInt32, n), opaque_scalar(mi.UInt32, L)
     start = r * L_o
     end = dr.minimum(start + L_o, n_o)
+    if rows is not None:
+        end = dr.select(rows(row) if callable(rows) else dr.gather(mi.Bool, rows, row),
+                        end, start)
     offset, scale = depth_map(dr.gather(mi.Float, z_lo.array, rr),
                               dr.gather(mi.Float, z_hi.array, rr), fit_depth)
     # first harmonic of the group: basis index g*G -> k0 = g*G/2 (0-based)
@@ -161,6 +176,8 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
         zi = (dr.gather(mi.Float, z.array, texel) - offset) * scale
         if w_flat is None:
             w = mi.Float(1.0)
+        elif callable(w_flat):
+            w = w_flat(row, i)
         else:
             w = dr.gather(mi.Float, w_flat, i if shared_w else texel)
         W = W + w

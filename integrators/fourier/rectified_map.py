@@ -69,7 +69,7 @@ import numpy as np
 from ..core.opaque import Divisor, opaque_scalar, scalar_u32, two_or_more
 from ..epipolar.queries import frame_memo
 from ..epipolar.query_terms import cell_average
-from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
+from .prefilter import FilteredBasis, filtered_visibility, prefix_filter, region_depth_bounds
 
 
 DEPTH_RANGES = ("slice", "full")
@@ -292,13 +292,59 @@ class FilterSettings:
     exact_bounds: bool = True
 
 
-def prefilter_rows(smap: RectifiedShadowMap, w, opt: FilterSettings) -> FilteredBasis | None:
+def texel_weight(w, texel) -> mi.Float:
+    """Texel weights ``w`` at flat texels ``texel``: ``w`` an (n·d) array,
+    a width-1 weight of every texel, or a function of the texel index
+    (weights made from evaluated arrays where they are read, e.g.
+    :func:`product_weights`: no texel array of their own)."""
+    if callable(w):
+        return w(texel)
+    return w if dr.width(w) == 1 else dr.gather(mi.Float, w, texel)
+
+
+def product_weights(L, K, at: int = 0):
+    """The texel weights ``L · K`` (``L`` (n·d), ``K`` read from entry
+    ``at`` on: one of several kernels laid one after another; both
+    evaluated) as a function of the texel index (:func:`texel_weight`):
+    each reader multiplies them where it reads them."""
+    offset = opaque_scalar(mi.UInt32, at)
+    return lambda texel: dr.gather(mi.Float, L, texel) * dr.gather(mi.Float, K, texel + offset)
+
+
+def filter_depths(smap: RectifiedShadowMap, regions: int):
+    """(z_rows, (z_lo, z_hi)): the filtered rows' depths
+    (:meth:`RectifiedShadowMap.z_rows`) and their regions' depth bounds
+    (:func:`~integrators.fourier.prefilter.region_depth_bounds`), made
+    once per map: every filter of a frame (each weighting, each
+    reference ray) reads the same."""
+    def make():
+        z = smap.z_rows()
+        bounds = region_depth_bounds(z, regions)
+        dr.eval(z, *bounds)
+        return z, bounds
+    return frame_memo(smap, ("filter_depths", regions), make)
+
+
+def prefilter_rows(smap: RectifiedShadowMap, w, opt: FilterSettings,
+                   rows=None) -> FilteredBasis | None:
     """Filtered-basis textures of the filtered rows with texel weights ``w``
-    (n·d, ≥ 0; zeroed outside the series texels) (Listings 2-3)."""
+    (n·d, ≥ 0, or a function of the texel: :func:`texel_weight`; zeroed
+    outside the series texels) (Listings 2-3), read in the filter's loop.
+    ``rows``: ``None`` or a function of row indices (< n) telling the
+    rows to filter; the others' textures stay 0 (visibility 1 where read)."""
     if smap.n_filtered == 0:
         return None
-    weights = smap.gather_rows(dr.select(smap.series, w, 0.0))
-    return prefix_filter(smap.z_rows(), weights, opt.M, opt.regions, opt.fit_depth)
+    z, bounds = filter_depths(smap, opt.regions)
+    d_o = scalar_u32(smap.d)
+    src_rows = two_or_more(smap.rows)           # as gather_rows numbers them
+
+    def weights(row, i):
+        texel = dr.gather(mi.UInt32, src_rows, row) * d_o + i
+        return dr.select(dr.gather(mi.Bool, smap.series, texel), texel_weight(w, texel), 0.0)
+
+    active = None if rows is None else (lambda row: rows(dr.gather(mi.UInt32, src_rows, row)))
+    return prefix_filter(z, weights, opt.M, opt.regions, opt.fit_depth, bounds=bounds,
+                         rows=active)
 
 
 def series_visibility(smap: RectifiedShadowMap, fb: FilteredBasis | None, queries,
@@ -369,14 +415,40 @@ def class_and_total_sums(smap: RectifiedShadowMap, cover: Coverage, w):
     shadowed sum is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`),
     from one kernel and one prefix sum over the three masked copies of
     ``w``."""
+    return _class_sums(smap, cover, lambda k, g: texel_weight(w, g), 1)[0]
+
+
+#: most texel weights of one prefix sum of :func:`stacked_class_sums`
+#: (its memory: this many floats in and out)
+STACK_LIMIT = 1 << 25
+
+
+def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> list:
+    """:func:`class_and_total_sums` of the weights ``L · K_k`` of each of
+    ``count`` kernels laid one after another in ``K`` (``count``·n·d; as
+    :func:`product_weights`), bit for bit, as few prefix sums as
+    ``STACK_LIMIT`` allows (one for a frame's reference rays)."""
     size = dr.width(smap.lit)
-    if dr.width(w) != size:
-        w = dr.zeros(mi.Float, size) + w         # a width-1 weight: every texel's
-    lane = dr.arange(mi.UInt32, 3 * size)
-    k, g = Divisor(size).divmod(lane)
-    keep = dr.select(k == 0, dr.gather(mi.Bool, smap.lit, g),
-                     dr.select(k == 1, dr.gather(mi.Bool, smap.series, g), True))
-    return cover.stacked_sums(dr.select(keep, dr.gather(mi.Float, w, g), 0.0), 3)
+    per = max(1, STACK_LIMIT // (3 * size))
+    out = []
+    for first in range(0, count, per):
+        n = min(per, count - first)
+        base = opaque_scalar(mi.UInt32, first * size)
+        out += _class_sums(smap, cover, lambda k, g: dr.gather(mi.Float, L, g) * dr.gather(
+            mi.Float, K, base + k * scalar_u32(size) + g), n)
+    return out
+
+
+def _class_sums(smap: RectifiedShadowMap, cover: Coverage, weight, count: int) -> list:
+    """(Σ_lit, Σ_series, Σ_all) of ``count`` weightings ``weight(k, g)``
+    (k < count, g a texel), one prefix sum over their 3·count masked copies."""
+    size = dr.width(smap.lit)
+    j, g = Divisor(size).divmod(dr.arange(mi.UInt32, 3 * count * size))
+    k, c = j // 3, j % 3
+    keep = dr.select(c == 0, dr.gather(mi.Bool, smap.lit, g),
+                     dr.select(c == 1, dr.gather(mi.Bool, smap.series, g), True))
+    sums = cover.stacked_sums(dr.select(keep, weight(k, g), 0.0), 3 * count)
+    return [sums[3 * k:3 * k + 3] for k in range(count)]
 
 
 def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:

@@ -38,14 +38,15 @@ NumPy oracle: :func:`interpolated_kernel_reference`.
 """
 from __future__ import annotations
 
+import contextlib
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import scalar, scalar_u32
+from ..core.opaque import Divisor, scalar, scalar_u32
 from ..epipolar.light_models import light_model
 from .rectified_map import query_beta_range
 
@@ -88,7 +89,7 @@ class ReferenceRays:
     every query's place among its row's."""
     count: int            # the most of any row
     counts: mi.UInt32     # (n,) reference rays of every row
-    beta: list            # ``count`` arrays (n,): β_k of every row (k < counts[r])
+    beta: mi.Float        # (count·n) β_k of every row r at k·n + r (k < counts[r])
     node: mi.UInt32       # (Q,) k: the query's lower reference ray
     frac: mi.Float        # (Q,) f ∈ [0, 1]: its position toward ray k + 1
 
@@ -98,9 +99,10 @@ class ReferenceRays:
         f, k = self.frac, scalar_u32(k)
         return dr.select(self.node == k, 1.0 - f, dr.select(self.node + 1 == k, f, 0.0))
 
-    def rows_with(self, k: int) -> mi.Bool:
-        """(n,) the rows that have a reference ray ``k``."""
-        return self.counts > scalar_u32(k)
+    def rows_with(self, k: int):
+        """Whether rows have a reference ray ``k``: a function of row
+        indices (read where the rows are: no mask of its own)."""
+        return lambda rows: dr.gather(mi.UInt32, self.counts, rows) > scalar_u32(k)
 
 
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
@@ -125,13 +127,17 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
                                      spacing)
     else:
         counts = dr.full(mi.UInt32, count, dr.width(span))
-    K = int(dr.max(counts)[0]) if dr.width(counts) else 1
     last = mi.Float(dr.maximum(counts, 2) - 1)          # intervals of a row (≥ 1)
-    beta = []
-    for k in range(K):
-        s_k = dr.select(counts > 1, s_lo + span * (scalar(k) / last), s_lo + 0.5 * span)
-        b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
-        beta.append(dr.select(span > 0.0, b_k, lo))
+    dr.schedule(counts, last, s_lo, span, lo)           # with the read of the most rays
+    K = int(dr.max(counts)[0]) if dr.width(counts) else 1
+    n = dr.width(counts)
+    # β_k of every row, ray-major: (k, row) lanes
+    k, r = Divisor(n).divmod(dr.arange(mi.UInt32, K * n))
+    at = (lambda x: dr.gather(type(x), x, r))
+    s_k = dr.select(at(counts) > 1, at(s_lo) + at(span) * (mi.Float(k) / at(last)),
+                    at(s_lo) + 0.5 * at(span))
+    b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
+    beta = dr.select(at(span) > 0.0, b_k, at(lo))
     span_q = dr.gather(mi.Float, span, queries.row)
     last_q = dr.gather(mi.Float, last, queries.row)
     u = dr.select(span_q > 0.0,
@@ -139,12 +145,16 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
     u = dr.clip(u, 0.0, last_q)
     node = dr.minimum(mi.UInt32(u), mi.UInt32(last_q) - 1)
     frac = dr.select(dr.gather(mi.UInt32, counts, queries.row) > 1, u - mi.Float(node), 0.0)
+    dr.eval(beta, node, frac)
     return ReferenceRays(K, counts, beta, node, frac)
 
 
-def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
+def row_kernel(params, queries, rays, sigma_t: float, beta_ref, count: int = 1) -> mi.Float:
     """K(γ, β_ref) per light ray (n·d) for one reference angle per row
-    ``beta_ref`` (n,), the light side included (Klehm §3.2, Eq. 11).
+    ``beta_ref`` (n,), the light side included (Klehm §3.2, Eq. 11);
+    ``count`` angles per row (``beta_ref`` (count·n), ray-major as
+    :attr:`ReferenceRays.beta`): their kernels (count·n·d) one after
+    another, in one kernel.
     Directional: e^{-σt γ_g tan(β_ref/2)} at the light ray's start γ_g
     (equal light rays: the factor of the interval's mean is common to the
     row).  Projective texels: the integral of that kernel over the texel,
@@ -155,39 +165,39 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref) -> mi.Float:
     function of the reference ray at each light ray is the "angular
     dependency" of §3.2, next to the light's own (intensity, fall-off,
     texture) in L."""
-    tan_ref = dr.tan(0.5 * beta_ref)
     s, gamma = rays.positions(0.0)
-    tan_ref = dr.gather(mi.Float, tan_ref, s)
+    size = dr.width(gamma)
+    if count > 1:
+        dr.schedule(s)          # read at every ray's lanes: with the kernel's own arrays
     kernel = (rays.own_kernel(sigma_t)
               or light_model(params).ray_kernel(params, queries, rays, sigma_t))
-    return kernel(dr.arange(mi.UInt32, dr.width(gamma)), tan_ref)
+    if count == 1:
+        return kernel(dr.arange(mi.UInt32, size), dr.tan(0.5 * dr.gather(mi.Float, beta_ref, s)))
+    k, t = Divisor(size).divmod(dr.arange(mi.UInt32, count * size))
+    row = k * scalar_u32(dr.width(beta_ref) // count) + dr.gather(mi.UInt32, s, t)
+    return kernel(t, dr.tan(0.5 * dr.gather(mi.Float, beta_ref, row)))
 
 
-def interpolated_sum(refs: ReferenceRays, weighted_sum) -> tuple:
+def interpolated_sum(refs: ReferenceRays, weighted_sum, evaluate=None) -> tuple:
     """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
     that ``weighted_sum(k, rows)`` returns: the shadowed and the unshadowed
     weighted sums of reference ray k, and any further sums of its weights
     (needed only in the ``rows`` that have one, :meth:`ReferenceRays.rows_with`).
-    The sums are evaluated one reference ray at a time: the same kernels
-    for any number of rays."""
+    The sums are evaluated one reference ray at a time, in one kernel with
+    whatever of ``weighted_sum`` is not yet evaluated: the same kernels for
+    any number of rays.  ``evaluate``: a context manager whose yielded list
+    is evaluated at its exit (a timed stage), or ``None``."""
     out = None
     for k in range(refs.count):
         share = refs.share(k)
         sums = weighted_sum(k, refs.rows_with(k))
         if out is None:
             out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
-        out = [x + dr.select(share > 0.0, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+        with (evaluate() if evaluate is not None else contextlib.nullcontext([])) as keep:
+            out = [x + dr.select(share > 0.0, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+            keep.extend(out)
         dr.eval(out)
     return tuple(out)
-
-
-def restrict_rows(smap, rows: mi.Bool):
-    """The rectified shadow map with only ``rows`` (n,) filtered (the
-    others' queries read visibility 1 from the series, their texels keep
-    their classes): a reference ray's filter runs over the rows that have it."""
-    filtered = smap.filtered & rows
-    frow = dr.prefix_sum(dr.select(filtered, mi.UInt32(1), mi.UInt32(0)))
-    return replace(smap, filtered=filtered, rows=dr.compress(filtered), frow=frow)
 
 
 def interpolated_kernel_reference(gamma, beta, beta_lo, beta_hi, sigma_t: float,

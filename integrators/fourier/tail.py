@@ -44,6 +44,7 @@ import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, two_or_more
 from ..epipolar.last_interval import own_ray_visibility
+from .rectified_map import texel_weight
 
 
 #: longest run of texels behind the last visibility change that is traced
@@ -78,10 +79,11 @@ class TailVisibility:
     def correction(self, queries, cover, beta_b, w) -> mi.Float:
         """(Q,) Σ over each traced run of w_g c_g (V_traced − V_map): what
         the traced run changes in a weighted sum over the query's texels
-        that counted the map's visibility there (``w`` (n·d) per texel,
-        ``c_g`` the covered part).  0 where nothing was traced."""
+        that counted the map's visibility there (``w`` per texel:
+        :func:`~integrators.fourier.rectified_map.texel_weight`; ``c_g``
+        the covered part).  0 where nothing was traced."""
         return self.delta(queries.row, cover.texel, cover.frac, queries.beta, beta_b, cover.d,
-                          lambda t, q: dr.gather(mi.Float, w, t))
+                          lambda t, q: texel_weight(w, t))
 
     def delta(self, row, texel, frac, beta, beta_b, d: int, weight) -> mi.Float:
         """:meth:`correction` for queries given by their arrays (row, last

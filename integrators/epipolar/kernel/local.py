@@ -292,6 +292,7 @@ def local_ray_kernel(params, queries, rays: LocalLightRays, sigma_t: float):
     s, gamma = rays.positions(0.0)
     L, x_max = float(queries.frame.light_distance), query_x_max(queries)
     delta = dr.gather(mi.Float, rays.delta_gamma, s)
+    dr.eval(gamma, delta)       # read at any t: one kernel (with what the caller scheduled)
     return lambda t, tan: local_kernel(params, sigma_t, L, x_max, tan, dr.gather(mi.Float, gamma, t),
                                        dr.gather(mi.Float, delta, t))
 
