@@ -94,6 +94,9 @@ class TailVisibility:
         out = dr.zeros(mi.Float, dr.width(beta))
         if not self.traced:
             return out
+        # the arrays read below made in one kernel where they are not yet
+        # (a subset's: gathers of the frame's)
+        dr.schedule(row, texel, frac, beta, self.first, self.base)
         # the traced queries: kept from the trace (no compression, no read)
         q = self.idx if self.idx is not None else dr.compress(self.runs())
         if not dr.width(q):
