@@ -18,16 +18,16 @@ from .epipolar.light_models import light_model
 from .epipolar.query_terms import assemble_queries
 from .fourier.basis import check_M
 from .fourier.exact import exact_sums
+from .fourier.layers import layered_average
 from .fourier.prefilter import region_length
 from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
                                       projective_query_terms, texel_separated_kernel)
 from .fourier.quality import FILTER_RULE
 from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
                                     class_and_total_sums, near_band, near_step_weight,
-                                    prefilter_rows, product_weights, rectified_shadow_map,
-                                    series_sum, stacked_class_sums,
+                                    prefilter_rows, rectified_shadow_map, series_sum,
                                     series_unreliable, series_visibility)
-from .fourier.references import interpolated_sum, reference_rays, row_kernel
+from .fourier.references import reference_rays
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
                            row_shift, unshadowed_band)
@@ -497,36 +497,16 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """(V̄, S, P, near): the weighted average visibility with the weights
         of each query's mix of its two nearest reference rays
         (:mod:`integrators.fourier.references`), one filter per reference
-        ray, and its shadowed, unshadowed and near-step weight sums;
-        ``tail``: the traced end runs replace the map's visibility
+        ray (layers of one stacked filter, :mod:`integrators.fourier.layers`),
+        and its shadowed, unshadowed and near-step weight sums; ``tail``:
+        the traced end runs replace the map's visibility
         (:meth:`~integrators.fourier.tail.TailVisibility.correction`);
-        ``kernels``: reference ray k's kernel of this σt, kept for the other
-        channels (:meth:`channel_sums`)."""
-        if ("kernels", sigma_t) not in kernels:
-            K = row_kernel(params, queries, rays, sigma_t, refs.beta, refs.count)
-            dr.eval(K)
-            kernels["kernels", sigma_t] = K
-        K = kernels["kernels", sigma_t]
-        size = dr.width(smap.lit)
-        # the weights multiplied where each reader gathers them: the
-        # filter, the class sums and the tail correction
-        w = [product_weights(L, K, k * size) for k in range(refs.count)]
-        sums = stacked_class_sums(smap, cover, L, K, refs.count)
-        corrections = ([tail.correction(queries, cover, beta_b, w_k) for w_k in w]
-                       if tail is not None else None)
-        dr.eval(corrections)    # the sums are gathered by each ray's kernel
-
-        def weighted_sum(k, rows):
-            V_series, drop = self.filtered(queries, smap, cover, w[k], self.clamp,
-                                           band=self.exact_fallback, rows=rows, lazy=True)
-            lit, series, P = sums[k]
-            S = lit + series * V_series
-            if tail is not None:
-                S += corrections[k]
-            return S, P, near_step_weight(series, drop)
-
-        S, P, near = interpolated_sum(refs, weighted_sum, lambda: self.stage("evaluate"))
-        return dr.select(P > 0.0, S / P, 1.0), S, P, near
+        ``kernels``: the reference rays' kernels of this σt, kept for the
+        other channels (:meth:`channel_sums`)."""
+        band = near_band(self.M) if self.exact_fallback else 0.0
+        return layered_average(params, queries, rays, smap, cover, L, sigma_t, refs, beta_b,
+                               tail, kernels, self.filter_settings, self.clamp, band,
+                               self.stage)
 
     def filtered_average(self, queries, smap, cover, w, clamp: bool, beta_b=None, tail=None):
         """(V̄, S, P, near): the weighted average visibility with one filter of

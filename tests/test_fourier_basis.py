@@ -11,13 +11,16 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
-from hypothesis import given, settings, HealthCheck, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
 
 if mi.variant() is None:
     mi.set_variant("llvm_ad_rgb")
 
 from integrators.fourier import basis as fb_basis
 from integrators.fourier import prefilter as fb_prefilter
+
 
 F32 = np.float32
 
@@ -396,3 +399,34 @@ def test_prefix_filter_rows_bounds_and_weight_function():
         assert v[0] == 1.0 and v[1] == 1.0
         assert v[2] == visibility(plain, [0], [10.0], [0.9])[0]
 
+
+
+def test_prefix_filter_layers_are_each_layers_filter():
+    """Several weightings of the same rows stacked as layers (weights and
+    rows functions of the stacked row): each layer bit for bit the filter
+    of its weights alone, with its rows; the lookups of a stacked row read
+    the common depth bounds."""
+    rng = np.random.default_rng(7)
+    n_rows, n, M, regions, layers = 4, 23, 16, 2, 3
+    z = rng.random((n_rows, n)).astype(F32)
+    w = rng.random((layers, n_rows, n)).astype(F32)
+    keep = rng.random((layers, n_rows)) < 0.7
+    w_flat, keep_flat = mi.Float(w.ravel()), mi.Bool(keep.ravel())
+    stacked = fb_prefilter.prefix_filter(
+        mi.TensorXf(z), lambda row, i: dr.gather(mi.Float, w_flat, row * n + i), M, regions,
+        rows=lambda row: dr.gather(mi.Bool, keep_flat, row), layers=layers)
+    assert stacked.B_bar.shape == (layers * n_rows, n, M) and stacked.layer_rows == n_rows
+    B, W = stacked.B_bar.numpy(), stacked.W.numpy()
+    for l in range(layers):
+        one = fb_prefilter.prefix_filter(mi.TensorXf(z), mi.TensorXf(w[l]), M, regions,
+                                         rows=mi.Bool(keep[l]))
+        rows = slice(l * n_rows, (l + 1) * n_rows)
+        np.testing.assert_array_equal(B[rows], one.B_bar.numpy())
+        np.testing.assert_array_equal(W[rows], one.W.numpy())
+        r = np.arange(n_rows)
+        j = rng.random(n_rows) * (n - 1)
+        z_r = rng.random(n_rows)
+        np.testing.assert_array_equal(visibility(stacked, l * n_rows + r, j, z_r),
+                                      visibility(one, r, j, z_r))
+    with pytest.raises(ValueError, match="function of the stacked row"):
+        fb_prefilter.prefix_filter(mi.TensorXf(z), mi.TensorXf(w[0]), M, layers=2)

@@ -5,11 +5,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
+from test_fourier_defaults import _exact_inputs
 
 from integrators.fourier import rectified_map as rm
 from integrators.fourier.references import reference_rays, row_kernel
-
-from test_fourier_defaults import _exact_inputs
 
 
 def _random_map(rng, n=7, d=13, Q=40):
@@ -49,16 +48,20 @@ def test_stacked_class_sums_are_each_rays_sums(monkeypatch, limit_rays):
     monkeypatch.setattr(rm, "STACK_LIMIT", 3 * size * limit_rays)
     L = rng.random(size).astype(np.float32)
     K = rng.random(count * size).astype(np.float32)
-    got = rm.stacked_class_sums(smap, cover, mi.Float(L), mi.Float(K), count)
-    assert len(got) == count
+    table = rm.stacked_class_sums(smap, cover, mi.Float(L), mi.Float(K), count)
+    assert len(table.batches) == -(-count // limit_rays)
+    lane_k = rng.integers(0, count, len(row)).astype(np.uint32)
+    per_lane = [np.asarray(x) for x in table.at(mi.UInt32(lane_k))]
     for k in range(count):
+        got = table.of(k)
         one = rm.class_and_total_sums(smap, cover, rm.product_weights(mi.Float(L), mi.Float(K),
                                                                       k * size))
-        for a, b in zip(got[k], one):
+        for c, (a, b) in enumerate(zip(got, one)):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+            np.testing.assert_array_equal(per_lane[c][lane_k == k], np.asarray(a)[lane_k == k])
         oracle = _class_sums_numpy(L * K[k * size:(k + 1) * size], series, lit, row, k0, frac,
                                    smap.d)
-        np.testing.assert_allclose(np.array([np.asarray(x) for x in got[k]]), oracle,
+        np.testing.assert_allclose(np.array([np.asarray(x) for x in got]), oracle,
                                    rtol=1e-5, atol=1e-5)
 
 
@@ -75,3 +78,17 @@ def test_stacked_row_kernels_are_each_rays_kernel(name):
         one = row_kernel(inp["params"], q, rays, sigma_t, mi.Float(beta[k * n:(k + 1) * n]))
         np.testing.assert_array_equal(K[k * size:(k + 1) * size], np.asarray(one))
     assert np.isfinite(K).all() and (K > 0).any()
+
+
+@pytest.mark.parametrize("name", ["spot_room", "point_fog"])
+def test_layer_batches_change_nothing(monkeypatch, name):
+    """The reference rays' filters in batches of one layer (textures over
+    the memory limit) or all at once: the same image, bit for bit."""
+    from experiments import common as c
+    from integrators.fourier import layers
+
+    scene = c.load(c.scene_file(name), c.resolution(40, 30))
+    integ = mi.load_dict({"type": "fourier_filter", "reference_rays": 3})
+    whole = np.asarray(mi.render(scene, integrator=integ, spp=1))
+    monkeypatch.setattr(layers, "FILTER_BYTES", 1)
+    assert np.array_equal(np.asarray(mi.render(scene, integrator=integ, spp=1)), whole)

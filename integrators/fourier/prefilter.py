@@ -12,7 +12,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import opaque_scalar
+from ..core.opaque import Divisor, opaque_scalar
 from .basis import (DEFAULT_M, band_drop_weights, basis_coefficients_reference, check_M,
                     odd_harmonics, reconstruction_weights, reconstruction_weights_reference,
                     transmittance_weights)
@@ -37,6 +37,10 @@ class FilteredBasis:
     M: int
     regions: int = 1
     fit_depth: bool = False
+    #: rows of one layer where several filters of the same rows are stacked
+    #: (:func:`prefix_filter`'s ``layers``; the depth bounds are the
+    #: layers' common ones); 0: one layer
+    layer_rows: int = 0
 
     @property
     def n_rows(self) -> int:
@@ -120,7 +124,7 @@ def depth_map(z_lo, z_hi, fit_depth: bool):
 
 def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
                   fit_depth: bool = False, half: bool = False, bounds=None,
-                  rows=None) -> FilteredBasis:
+                  rows=None, layers: int = 1) -> FilteredBasis:
     """Weighted running prefix sums of the basis along every row (Listings 1–3).
 
     ``z_rows``: blocker depths ``(n_rows, n)`` in [0, 1]; ``weights``: ``None``
@@ -133,7 +137,10 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     with other weights).  ``rows``: ``None`` (all), an (n_rows,) mask of
     the rows to filter or a function of row indices giving it; the others
     keep ``B̄ = 0`` and ``W = 0`` (a weight sum of 0:
-    :func:`filtered_visibility` reads visibility 1 there).
+    :func:`filtered_visibility` reads visibility 1 there).  ``layers`` > 1:
+    that many filters of the same rows with other weights, stacked (rows
+    ``l·n_rows + row``; ``weights`` and ``rows`` then functions of the
+    stacked row), in one kernel; each layer bit for bit its own call.
 
     One Dr.Jit lane per (row, region, group of 16 bases) walks its texels left to
     right in a symbolic loop, computes the bases on the fly from the depth
@@ -150,14 +157,21 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
 
     G = _group_size(M)
     groups = M // G
-    lane = dr.arange(mi.UInt32, n_rows * regions * groups)
-    g, rr = lane % groups, lane // groups          # rr = row * regions + r
-    row, r = rr // regions, rr % regions
+    if layers > 1 and not (w_flat is None or callable(w_flat)) or layers < 1:
+        raise ValueError("several layers need weights as a function of the stacked row.")
+    lane = dr.arange(mi.UInt32, layers * n_rows * regions * groups)
+    g, rr = lane % groups, lane // groups          # rr = stacked row * regions + r
+    row_out, r = rr // regions, rr % regions       # stacked row l·n_rows + row
+    if layers > 1:
+        row = Divisor(n_rows).divmod(row_out)[1]
+        rr = row * regions + r
+    else:
+        row = row_out
     n_o, L_o = opaque_scalar(mi.UInt32, n), opaque_scalar(mi.UInt32, L)
     start = r * L_o
     end = dr.minimum(start + L_o, n_o)
     if rows is not None:
-        end = dr.select(rows(row) if callable(rows) else dr.gather(mi.Bool, rows, row),
+        end = dr.select(rows(row_out) if callable(rows) else dr.gather(mi.Bool, rows, row_out),
                         end, start)
     offset, scale = depth_map(dr.gather(mi.Float, z_lo.array, rr),
                               dr.gather(mi.Float, z_hi.array, rr), fit_depth)
@@ -165,19 +179,19 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     k0 = mi.Float(g * (G // 2))
 
     store = mi.Float16 if half else mi.Float
-    B_bar = dr.zeros(store, n_rows * n * M)
-    W_out = dr.zeros(mi.Float, n_rows * n)
+    B_bar = dr.zeros(store, layers * n_rows * n * M)
+    W_out = dr.zeros(mi.Float, layers * n_rows * n)
 
     def cond(i, W, Bb):
         return i < end
 
     def body(i, W, Bb):
-        texel = row * n_o + i
-        zi = (dr.gather(mi.Float, z.array, texel) - offset) * scale
+        zi = (dr.gather(mi.Float, z.array, row * n_o + i) - offset) * scale
+        texel = row_out * n_o + i
         if w_flat is None:
             w = mi.Float(1.0)
         elif callable(w_flat):
-            w = w_flat(row, i)
+            w = w_flat(row_out, i)
         else:
             w = dr.gather(mi.Float, w_flat, i if shared_w else texel)
         W = W + w
@@ -193,9 +207,9 @@ def prefix_filter(z_rows, weights=None, M: int = DEFAULT_M, regions: int = 1,
     dr.while_loop((mi.UInt32(start), mi.Float(0.0), [mi.Float(0.0)] * G), cond, body,
                   labels=("i", "W", "B_bar"), label="fourier_prefix_filter")
     tensor = mi.TensorXf16 if half else mi.TensorXf
-    return FilteredBasis(tensor(B_bar, shape=(n_rows, n, M)),
-                         mi.TensorXf(W_out, shape=(n_rows, n)),
-                         z_lo, z_hi, M, regions, fit_depth)
+    return FilteredBasis(tensor(B_bar, shape=(layers * n_rows, n, M)),
+                         mi.TensorXf(W_out, shape=(layers * n_rows, n)),
+                         z_lo, z_hi, M, regions, fit_depth, n_rows if layers > 1 else 0)
 
 
 def _group_bases(z, k0, G: int) -> list:
@@ -289,8 +303,10 @@ def filtered_visibility(fb: FilteredBasis, row, j, z_r, clamp: bool = False,
         if band > 0.0:
             a_shared.append(band_drop_weights(z_r, band, fb.M, harmonics))
 
+    bound_row = Divisor(fb.layer_rows).divmod(row)[1] if fb.layer_rows else row
+
     def lookup(q, rho, mask):
-        return _lookup(fb, row * n_o + q, row * R + rho, z_r, a_shared, clamp,
+        return _lookup(fb, row * n_o + q, bound_row * R + rho, z_r, a_shared, clamp,
                        exact_bounds, mask, band)
 
     v0, W0 = lookup(j0, rho0, active)

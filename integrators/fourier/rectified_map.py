@@ -415,7 +415,7 @@ def class_and_total_sums(smap: RectifiedShadowMap, cover: Coverage, w):
     shadowed sum is ``Σ_lit + Σ_series · V̄_series``, :func:`shadowed_sum`),
     from one kernel and one prefix sum over the three masked copies of
     ``w``."""
-    return _class_sums(smap, cover, lambda k, g: texel_weight(w, g), 1)[0]
+    return cover.stacked_sums(_class_stack(smap, lambda k, g: texel_weight(w, g), 1), 3)
 
 
 #: most texel weights of one prefix sum of :func:`stacked_class_sums`
@@ -423,32 +423,68 @@ def class_and_total_sums(smap: RectifiedShadowMap, cover: Coverage, w):
 STACK_LIMIT = 1 << 25
 
 
-def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> list:
+@dataclass(eq=False)
+class ClassSums:
+    """(Σ_lit, Σ_series, Σ_all) of :func:`class_and_total_sums` for each of
+    ``count`` weightings, read per query from the prefix sums of their
+    stacked masked copies (``batches``: (first weighting, count, prefix
+    sums, stack) of each prefix sum)."""
+    cover: Coverage
+    size: int
+    count: int
+    batches: list
+
+    def of(self, k: int) -> tuple:
+        """The three sums of weighting ``k`` (every query)."""
+        first, _, P, stack = next(b for b in self.batches if b[0] <= k < b[0] + b[1])
+        return tuple(self._at(P, stack, scalar_u32(3 * (k - first) + c) * scalar_u32(self.size))
+                     for c in range(3))
+
+    def at(self, k: mi.UInt32, active=True) -> tuple:
+        """The three sums of weighting ``k[q]`` for each query q (0 where
+        not ``active``), bit for bit :meth:`of`."""
+        out = [mi.Float(0.0)] * 3
+        for first, count, P, stack in self.batches:
+            here = (mi.Bool(active) & (k >= opaque_scalar(mi.UInt32, first))
+                    & (k < opaque_scalar(mi.UInt32, first + count)))
+            j = k - opaque_scalar(mi.UInt32, first)
+            out = [dr.select(here, self._at(P, stack, (3 * j + c) * scalar_u32(self.size), here),
+                             x) for c, x in enumerate(out)]
+        return tuple(out)
+
+    def _at(self, P, stack, offset, active=True):
+        at = self.cover.texel + offset
+        return (dr.gather(mi.Float, P, at, active)
+                + self.cover.frac * dr.gather(mi.Float, stack, at, active))
+
+
+def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> ClassSums:
     """:func:`class_and_total_sums` of the weights ``L · K_k`` of each of
     ``count`` kernels laid one after another in ``K`` (``count``·n·d; as
     :func:`product_weights`), bit for bit, as few prefix sums as
     ``STACK_LIMIT`` allows (one for a frame's reference rays)."""
     size = dr.width(smap.lit)
     per = max(1, STACK_LIMIT // (3 * size))
-    out = []
+    batches = []
     for first in range(0, count, per):
         n = min(per, count - first)
         base = opaque_scalar(mi.UInt32, first * size)
-        out += _class_sums(smap, cover, lambda k, g: dr.gather(mi.Float, L, g) * dr.gather(
+        stack = _class_stack(smap, lambda k, g: dr.gather(mi.Float, L, g) * dr.gather(
             mi.Float, K, base + k * scalar_u32(size) + g), n)
-    return out
+        dr.eval(stack)
+        batches.append((first, n, dr.block_prefix_sum(stack, cover.d, exclusive=True), stack))
+    return ClassSums(cover, size, count, batches)
 
 
-def _class_sums(smap: RectifiedShadowMap, cover: Coverage, weight, count: int) -> list:
-    """(Σ_lit, Σ_series, Σ_all) of ``count`` weightings ``weight(k, g)``
-    (k < count, g a texel), one prefix sum over their 3·count masked copies."""
+def _class_stack(smap: RectifiedShadowMap, weight, count: int) -> mi.Float:
+    """The 3·count masked copies (lit, series, all) of ``count`` weightings
+    ``weight(k, g)`` (k < count, g a texel), one after another."""
     size = dr.width(smap.lit)
     j, g = Divisor(size).divmod(dr.arange(mi.UInt32, 3 * count * size))
     k, c = j // 3, j % 3
     keep = dr.select(c == 0, dr.gather(mi.Bool, smap.lit, g),
                      dr.select(c == 1, dr.gather(mi.Bool, smap.series, g), True))
-    sums = cover.stacked_sums(dr.select(keep, weight(k, g), 0.0), 3 * count)
-    return [sums[3 * k:3 * k + 3] for k in range(count)]
+    return dr.select(keep, weight(k, g), 0.0)
 
 
 def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:

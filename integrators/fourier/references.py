@@ -46,7 +46,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.opaque import Divisor, scalar, scalar_u32
+from ..core.opaque import Divisor, opaque_scalar, scalar, scalar_u32
 from ..epipolar.light_models import light_model
 from .rectified_map import query_beta_range
 
@@ -98,11 +98,6 @@ class ReferenceRays:
         (``k`` a kernel parameter: every ray shares one kernel)."""
         f, k = self.frac, scalar_u32(k)
         return dr.select(self.node == k, 1.0 - f, dr.select(self.node + 1 == k, f, 0.0))
-
-    def rows_with(self, k: int):
-        """Whether rows have a reference ray ``k``: a function of row
-        indices (read where the rows are: no mask of its own)."""
-        return lambda rows: dr.gather(mi.UInt32, self.counts, rows) > scalar_u32(k)
 
 
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
@@ -178,23 +173,28 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref, count: int = 1) 
     return kernel(t, dr.tan(0.5 * dr.gather(mi.Float, beta_ref, row)))
 
 
-def interpolated_sum(refs: ReferenceRays, weighted_sum, evaluate=None) -> tuple:
+def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=None) -> tuple:
     """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
-    that ``weighted_sum(k, rows)`` returns: the shadowed and the unshadowed
-    weighted sums of reference ray k, and any further sums of its weights
-    (needed only in the ``rows`` that have one, :meth:`ReferenceRays.rows_with`).
-    The sums are evaluated one reference ray at a time, in one kernel with
-    whatever of ``weighted_sum`` is not yet evaluated: the same kernels for
-    any number of rays.  ``evaluate``: a context manager whose yielded list
-    is evaluated at its exit (a timed stage), or ``None``."""
+    of its two nearest reference rays k (the others' shares are 0): the
+    shadowed and the unshadowed weighted sums of ray k and any further
+    sums of its weights.  ``batches``: (first ray, rays) of the rays made
+    together; ``layer_sums(first, rays)`` makes a batch's filters and
+    returns ``sums(k, active)``, the tuple X_k of each query's ray ``k``
+    (where ``active``).  One kernel per batch whatever the number of rays;
+    the sums added in the order of k (bit for bit one ray at a time).
+    ``evaluate``: a context manager whose yielded list is evaluated at its
+    exit (a timed stage), or ``None``."""
     out = None
-    for k in range(refs.count):
-        share = refs.share(k)
-        sums = weighted_sum(k, refs.rows_with(k))
-        if out is None:
-            out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+    for first, count in batches:
+        sums_of = layer_sums(first, count)
         with (evaluate() if evaluate is not None else contextlib.nullcontext([])) as keep:
-            out = [x + dr.select(share > 0.0, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+            lo, hi = opaque_scalar(mi.UInt32, first), opaque_scalar(mi.UInt32, first + count)
+            for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
+                use = (share > 0.0) & (k >= lo) & (k < hi)
+                sums = sums_of(k, use)
+                if out is None:
+                    out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+                out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
             keep.extend(out)
         dr.eval(out)
     return tuple(out)
