@@ -306,7 +306,6 @@ class DirectionalSeparation:
         if not n or not kernels or getattr(rays, "h", None) is None:
             return [0.0] * len(kernels)
         r_count = mi.UInt32(queries.r_count)
-        used = r_count > 0
         # the rows' first and last queries (queries are sorted by row, then β)
         begin = dr.prefix_sum(r_count)
         d = rays.d
@@ -322,43 +321,50 @@ class DirectionalSeparation:
         gamma = rays.position(s, g, 0.0)
         h_ref = rays.h_ref
         h_lo = dr.min(h_ref)
+        # the rows' side at each lane of its row (as a kernel over the rows
+        # computes it: ``lanes`` n), so that the checked light rays are one
+        # kernel; each row's weights are written to the buffer with its sums
+        # (the same value from every lane of the row: Max keeps it exactly)
+        r_s = dr.gather(mi.UInt32, r_count, s)
+        used = r_s > 0
+        b_s = dr.gather(mi.UInt32, begin, s)
         betas = [dr.gather(mi.Float, queries.beta, q, used)
-                 for q in (begin, begin + dr.maximum(r_count, 1) - 1)]
+                 for q in (b_s, b_s + dr.maximum(r_s, 1) - 1)]
         tans = [dr.tan(0.5 * beta) for beta in betas]
-        b_all = [[kern.b_terms(t) for t in tans] for kern in kernels]
-        weights = []
-        for k, kern in enumerate(kernels):
-            neg_st = opaque_scalar(mi.Float, -float(kern.sigma_t))
-            weights += [dr.exp(neg_st * (h_ref - h_lo)) * rays.delta_gamma
-                        * mi.Float(stride_o) / dr.maximum(dr.sin(beta), 1e-6) for beta in betas]
-        dr.eval(b_all, tans, weights, used)     # the rows' side, one kernel
-        # per channel and column: (Σ |K̃ − K| L, Σ K L) per row, in one buffer
+        h_ref_s = dr.gather(mi.Float, h_ref, s)
+        delta_s = dr.gather(mi.Float, rays.delta_gamma, s)
+        # per channel and column: (Σ |K̃ − K| L, Σ K L) per row in one buffer,
+        # the weights in another (one kind of reduction per buffer)
         sums = dr.zeros(mi.Float, 4 * n * len(kernels))
+        weights = dr.zeros(mi.Float, 2 * n * len(kernels))
+        n_o = opaque_scalar(mi.UInt32, n)
         for k, kern in enumerate(kernels):
             neg_st = opaque_scalar(mi.Float, -float(kern.sigma_t))
-            L = light_side_extinction(kern.sigma_t, dr.gather(mi.Float, rays.h, ray),
-                                      dr.gather(mi.Float, rays.h_ref, s))
+            L = light_side_extinction(kern.sigma_t, dr.gather(mi.Float, rays.h, ray), h_ref_s)
             a_terms = kern.a_terms(gamma, dr.width(gamma))
-            for j, (tan_half, b_terms) in enumerate(zip(tans, b_all[k])):
-                tan_s = dr.gather(mi.Float, tan_half, s)
+            for j, (beta, tan_s) in enumerate(zip(betas, tans)):
+                b_terms = kern.b_terms(tan_s, lanes=n)
                 approx = dr.zeros(mi.Float, dr.width(gamma))
                 for i in range(kern.N):
-                    approx += a_terms[i] * dr.gather(mi.Float, b_terms[i], s)
+                    approx += a_terms[i] * b_terms[i]
                 exact = dr.exp(neg_st * gamma * tan_s)
+                weight = (dr.exp(neg_st * (h_ref_s - h_lo)) * delta_s
+                          * mi.Float(stride_o) / dr.maximum(dr.sin(beta), 1e-6))
                 base = opaque_scalar(mi.UInt32, (4 * k + 2 * j) * n)
                 dr.scatter_reduce(dr.ReduceOp.Add, sums, dr.abs(approx - exact) * L, base + s)
-                dr.scatter_reduce(dr.ReduceOp.Add, sums, exact * L,
-                                  base + opaque_scalar(mi.UInt32, n) + s)
-        dr.eval(sums)                           # the checked light rays, one kernel
+                dr.scatter_reduce(dr.ReduceOp.Add, sums, exact * L, base + n_o + s)
+                dr.scatter_reduce(dr.ReduceOp.Max, weights,
+                                  weight, opaque_scalar(mi.UInt32, (2 * k + j) * n) + s)
+        dr.eval(sums, weights)                  # the checked light rays, one kernel
         # host reads of evaluated arrays (copies, no kernels): the sums, weights
         host = np.asarray(sums).reshape(len(kernels), 2, 2, n)
-        w_host = [np.asarray(w) for w in weights]
-        use = np.asarray(used)
+        w_host = np.asarray(weights).reshape(len(kernels), 2, n)
+        use = np.asarray(queries.r_count) > 0
         out = []
         for k in range(len(kernels)):
             worst, scale = 0.0, 0.0
             for j in range(2):
-                w = w_host[2 * k + j]
+                w = w_host[k, j]
                 # fmax: a NaN lane is skipped, as dr.max skips it
                 worst = max(worst, float(np.fmax.reduce(np.where(use, host[k, j, 0] * w, 0.0))))
                 scale = max(scale, float(np.fmax.reduce(np.where(use, host[k, j, 1] * w, 0.0))))
