@@ -25,7 +25,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.host_reads import host_reductions
+from ...core.host_reads import host_reductions, row_extremes
 from ...core.light_transport import phase_eval, scalar
 from ...core.opaque import Divisor, floats, opaque_scalar
 from ..light_rays.local import LocalLightRays, light_ray_range
@@ -358,12 +358,12 @@ def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
     K ≈ 0 on the whole domain, which its normalisation would blow up."""
     def make():
         lit = light_ray_range(params, queries)[2]
-        # with and without the lit rows: the host picks (one kernel each width)
-        any_lit, lo_lit, hi_lit, lo_all, hi_all = host_reductions(
-            (dr.any, lit), (dr.min, dr.select(lit, rays.gamma_lo, dr.inf)),
-            (dr.max, dr.select(lit, rays.gamma_max, -dr.inf)),
-            (dr.min, mi.Float(rays.gamma_lo)), (dr.max, mi.Float(rays.gamma_max)))
-        gamma_lo, gamma_hi = (lo_lit, hi_lit) if any_lit else (lo_all, hi_all)
+        # with and without the lit rows: the host picks (the rows' arrays
+        # copied, no kernel; the queries' reduced in one kernel)
+        any_lit = bool(np.asarray(lit).any())
+        rows = lit if any_lit else None
+        gamma_lo = row_extremes(rays.gamma_lo, rows)[0]
+        gamma_hi = row_extremes(rays.gamma_max, rows)[1]
         row_lit = dr.gather(mi.Bool, lit, queries.row) if any_lit else mi.Bool(True)
         seen = row_lit & (queries.beta < scalar(math.pi - gamma_lo))
         any_seen, lo_seen, hi_seen, lo_q, hi_q = host_reductions(

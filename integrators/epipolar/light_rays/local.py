@@ -11,7 +11,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...core.host_reads import host_reductions
+from ...core.host_reads import row_extremes
 from ...core.light_transport import medium_interval, point, scalar, vector
 from ..queries import EpipolarQueries, frame_memo
 from .directional import MIN_AUTO_LIGHT_RAYS, light_ray_count, row_gamma_end
@@ -169,9 +169,10 @@ def cone_samples(params, queries: EpipolarQueries) -> mi.UInt32:
         return none
 
     def reached(q):
-        lo, _, lit = cone_interval(params, q.frame, q.alpha)
-        reach = (dr.gather(mi.Bool, lit, q.row)
-                 & (dr.gather(mi.Float, lo, q.row) < q.gamma_end))
+        # the cone's interval of each query's row, at the query's lane (the
+        # same arithmetic as over the rows: no kernel of its own)
+        lo, _, lit = cone_interval(params, q.frame, dr.gather(mi.Float, q.alpha, q.row))
+        reach = lit & (lo < q.gamma_end)
         hit = dr.zeros(mi.Bool, q.n_samples)
         dr.scatter(hit, True, q.sample, reach)
         return dr.compress(hit)
@@ -215,9 +216,12 @@ def light_ray_spacing(lo, hi, lit, d: int, auto: bool, gamma_max) -> float:
     ``MIN_AUTO_LIGHT_RAYS`` across its widest lit row: a narrow cone is
     not left with a few light rays, nor a wide one with more than the
     image's resolution asks for."""
-    any_lit, widest_lit, widest, longest = host_reductions(
-        (dr.any, lit), (dr.max, dr.select(lit, hi - lo, 0.0)), (dr.max, hi - lo),
-        (dr.max, gamma_max))
+    # the rows' evaluated arrays, copied (no kernel); float32 as on the device
+    span = np.asarray(hi) - np.asarray(lo)
+    lit_h = np.asarray(lit, bool)
+    any_lit = bool(lit_h.any())
+    widest_lit = max(row_extremes(span, lit_h)[1], 0.0)
+    widest, longest = row_extremes(span)[1], row_extremes(gamma_max)[1]
     width_lit = widest_lit if any_lit else widest
     delta = width_lit / (d - 1)
     if auto:
