@@ -202,21 +202,35 @@ class _Problem(_Record):
     A: Float
     B: Float
     L: Float | None
-    r_count: Int    # (n,)
-    d_count: Int    # (n,)
+    r_count: "_SliceCounts"    # (n,) view rays per slice
+    d_count: "_SliceCounts"    # (n,) light rays per slice
     d_o: Int        # d and r as opaque kernel parameters, so that index
     r_o: Int        # arithmetic does not recompile for every resolution
     updates: Int    # (n,) modes per slice that act inside the view (w ≠ 0)
 
 
-def _counts(x, n, default):
-    default = opaque_scalar(jt.Int, default)      # a frame's size: not a literal
-    if x is None:
-        return dr.zeros(jt.Int, n) + default
-    c = _flat(x, jt.Int)
-    if dr.width(c) != n:
-        raise ValueError(f"per-slice counts must have length {n}")
-    return dr.clip(c, 0, default)
+class _SliceCounts:
+    """Per-slice counts (n,) clamped to [0, ``default``], read where they
+    are used (:meth:`at`): the given array as it is (converted and clamped
+    at each reader's lanes: no kernel of its own), or ``default`` (a
+    frame's size, opaque) for every slice where none is given."""
+
+    def __init__(self, x, n: int, default: int):
+        self.default = opaque_scalar(jt.Int, default)      # a frame's size: not a literal
+        self.src = None
+        if x is not None:
+            src = (dr.detach(x.array if dr.is_tensor_v(x) else x) if dr.is_array_v(x)
+                   else jt.Int(aligned(x, np.int32)))
+            if dr.width(src) != n:
+                raise ValueError(f"per-slice counts must have length {n}")
+            self.src = src
+
+    def at(self, slices):
+        """The counts of ``slices`` (per lane)."""
+        if self.src is None:
+            return dr.zeros(jt.Int, dr.width(slices)) + self.default
+        c = jt.Int(dr.gather(type(self.src), self.src, slices))
+        return dr.clip(c, 0, self.default)
 
 
 def problem_layout(D, S_modes, A, B, L) -> _Layout:
@@ -249,8 +263,7 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     lay = problem_layout(D, S_modes, A, B, L)
     n, r, d, M = lay.n, lay.r, lay.d, lay.M
     beta_in, weight_in, _ = split_modes(S_modes)
-    r_cnt, d_cnt = _counts(r_count, n, r), _counts(d_count, n, d)
-    dr.eval(r_cnt, d_cnt)
+    r_cnt, d_cnt = _SliceCounts(r_count, n, r), _SliceCounts(d_count, n, d)
 
     # Modes: ⌈β⌉ clamped to [0, r] (r = never), and weight 0 for modes that
     # cannot act in their slice (γ ≥ d_count, ⌈β⌉ ≥ r_count, NaN β).
@@ -261,7 +274,7 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     weight = dr.ones(jt.Float, dr.width(beta)) if weight_in is None else _flat(weight_in, jt.Float)
     j = dr.arange(jt.Int, n * d * M)
     s, g = Divisor(d * M).div(j), Divisor(d).divmod(j // M)[1]
-    acts = (g < dr.gather(jt.Int, d_cnt, s)) & (beta < dr.gather(jt.Int, r_cnt, s))
+    acts = (g < d_cnt.at(s)) & (beta < r_cnt.at(s))
     weight = dr.select(acts, weight, 0.0)
     beta = dr.select(weight != 0, beta, r_o)
     # the modes and their count per slice, one kernel
@@ -350,8 +363,8 @@ class _Updates(_Record):
 @dr.syntax
 def _bucket_kernel(p: _Problem, slices, begin, hist_size, gamma_out, beta_out, w_out):
     lay = p.lay
-    r_s = dr.gather(jt.Int, p.r_count, slices)
-    d_s = dr.gather(jt.Int, p.d_count, slices)
+    r_s = p.r_count.at(slices)
+    d_s = p.d_count.at(slices)
     hist = dr.alloc_local(jt.Int, hist_size)
     r_s = dr.minimum(r_s, jt.Int(hist_size))      # size literal: part of the kernel hash
     b = jt.Int(0)
@@ -431,8 +444,8 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
     "computation references variables from a loop that was optimized away"
     with Dr.Jit 1.5."""
     K = len(comps)
-    r_s = dr.gather(jt.Int, p.r_count, slices)
-    d_s = dr.gather(jt.Int, p.d_count, slices)
+    r_s = p.r_count.at(slices)
+    d_s = p.d_count.at(slices)
     tree = dr.alloc_local(jt.Float, tree_size)
     vis = dr.alloc_local(jt.Float, leaf_size)
     # size literals: part of the kernel hash (Dr.Jit 1.5 omits local array sizes)
@@ -520,8 +533,8 @@ def _closed_form_shared(p: _Problem, slices: jt.Int, out: jt.Float):
     lane = dr.arange(jt.Int, dr.width(slices) * lay.r)
     s = dr.gather(jt.Int, slices, lane // p.r_o)
     beta = lane % p.r_o
-    active = beta < dr.gather(jt.Int, p.r_count, s)
-    k0, f = _depth_split(p, s, beta, dr.gather(jt.Int, p.d_count, s))
+    active = beta < p.r_count.at(s)
+    k0, f = _depth_split(p, s, beta, p.d_count.at(s))
     q = [dr.lerp(dr.gather(jt.Float, c_k, k0), dr.gather(jt.Float, c_k, k0 + 1), f)
          for c_k in cum]
     _accumulate(p, out, s, beta, comps, q, active)
@@ -533,8 +546,8 @@ def _closed_form_local_kernel(p: _Problem, slices, comps, size, out):
     """Per-slice cumulative sums C(k) = Σ_{γ<k} a[γ] in lane-local memory,
     then out = Δγ Σ B lerp(C(k0), C(k0+1), f) for every β of the slice."""
     K = len(comps)
-    r_s = dr.gather(jt.Int, p.r_count, slices)
-    d_s = dr.gather(jt.Int, p.d_count, slices)
+    r_s = p.r_count.at(slices)
+    d_s = p.d_count.at(slices)
     cum = dr.alloc_local(jt.Float, size)
     d_s = dr.minimum(d_s, jt.Int(size // K - 1))  # size literal: part of the kernel hash
     run = [jt.Float(0.0) for _ in range(K)]
