@@ -248,9 +248,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         modes = self.blocker_stage(params, cap, queries, side)
         rays, L, D = side.rays, side.L, side.D
         with self.stage("sweep") as keep:
-            d_count = mi.Int32(rays.d_count) if model.local else None
-            integral = integrate_slices(D, modes, A, B, L=L, r_count=mi.Int32(queries.r_count),
-                                        d_count=d_count)
+            # the counts as they are (the sweep converts them where it reads them)
+            integral = integrate_slices(D, modes, A, B, L=L, r_count=queries.r_count,
+                                        d_count=rays.d_count if model.local else None)
             keep.append(integral)
         with self.stage("unrectify") as keep:
             # the last, partial light-ray interval of each query: ray-traced
