@@ -102,7 +102,7 @@ class SceneSpec:
     sigma_t: float
     albedo: float
     g: float | None                       # HG asymmetry; None = isotropic
-    light: dict                           # type + plain parameters (see _light_dict)
+    light: dict                           # type + plain parameters (see light_dict)
     occluders: list[dict] = field(default_factory=list)   # {"shape": "box"/"sphere", ...}
     #: lights besides ``light`` (the extended generator, :func:`extended_scene`)
     more_lights: list[dict] = field(default_factory=list)
@@ -167,10 +167,10 @@ class SceneSpec:
                        "sampler": {"type": "independent", "sample_count": 1},
                        "medium": {"type": "ref", "id": "medium"}},
             "box": self._boundary_dict(),
-            "light": _light_dict(self.light),
+            "light": light_dict(self.light),
         }
         for i, light in enumerate(self.more_lights):
-            d[f"light_{i + 2}"] = _light_dict(light)
+            d[f"light_{i + 2}"] = light_dict(light)
         if self.camera_outside:
             del d["sensor"]["medium"]
         if occluders:
@@ -199,7 +199,10 @@ class SceneSpec:
         return mi.load_dict(self.scene_dict(occluders))
 
 
-def _light_dict(light: dict) -> dict:
+def light_dict(light: dict) -> dict:
+    """The Mitsuba dictionary of a light given as plain data (type,
+    direction/position, irradiance/intensity; a spot's cutoff, beam width,
+    position, target, up and checkerboard ``texture`` scale)."""
     import mitsuba as mi
 
     T = mi.ScalarTransform4f

@@ -38,6 +38,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from experiments.random_scenes import light_dict
+
 #: the scene archetypes (module doc), in the order the seeds take them
 ARCHETYPES = ("window_room", "bar_lattice", "light_in_view", "colonnade", "canopy")
 #: the room's half size (world units)
@@ -81,7 +83,7 @@ class UserScene:
                         "sampler": {"type": "independent", "sample_count": 1}},
              "fog_volume": {"type": "cube", "to_world": T().scale(1.5 * S),
                             "bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "fog"}},
-             "light": _light_dict(self.light)}
+             "light": light_dict(self.light)}
         for k, shape in self.shapes.items():
             d[k] = _shape_dict(shape)
         return d
@@ -196,8 +198,9 @@ def _bar_lattice(rng):
     pos = [rng.uniform(-0.3, 0.3) * S, rng.uniform(0.8, 1.2) * S, rng.uniform(-0.3, 0.3) * S]
     cutoff = float(rng.uniform(20, 45))
     light = {"type": "spot", "intensity": float(rng.uniform(10, 40)), "cutoff_angle": cutoff,
-             "beam_width": 0.8 * cutoff, "origin": pos,
-             "target": [rng.uniform(-0.3, 0.3) * S, -S, rng.uniform(-0.3, 0.3) * S]}
+             "beam_width": 0.8 * cutoff, "position": pos,
+             "target": [rng.uniform(-0.3, 0.3) * S, -S, rng.uniform(-0.3, 0.3) * S],
+             "up": [0, 0, 1]}
     notes = [f"{n} bars"]
     if rng.random() < 0.5:
         light["texture"] = float(rng.uniform(2, 8))
@@ -279,22 +282,6 @@ def _canopy(rng):
 
 _BUILDERS = {"window_room": _window_room, "bar_lattice": _bar_lattice,
              "light_in_view": _light_in_view, "colonnade": _colonnade, "canopy": _canopy}
-
-
-def _light_dict(light: dict) -> dict:
-    import mitsuba as mi
-
-    out = {k: v for k, v in light.items() if k not in ("origin", "target", "texture")}
-    if light["type"] == "spot":
-        up = [0, 0, 1] if abs(np.subtract(light["target"], light["origin"])[2]) < 0.9 else [1, 0, 0]
-        out["to_world"] = mi.ScalarTransform4f().look_at(origin=light["origin"],
-                                                         target=light["target"], up=up)
-        if "texture" in light:
-            out["texture"] = {"type": "checkerboard",
-                              "color0": {"type": "rgb", "value": [1.0, 0.25, 0.1]},
-                              "color1": {"type": "rgb", "value": [0.15, 0.35, 1.0]},
-                              "to_uv": mi.ScalarTransform3f().scale(light["texture"])}
-    return out
 
 
 def _shape_dict(shape: dict) -> dict:
