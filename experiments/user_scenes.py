@@ -107,9 +107,12 @@ def _medium(rng) -> tuple[dict, list]:
     optical = math.exp(rng.uniform(math.log(0.1), math.log(10.0)))     # σt·S
     sigma_t = optical / S
     notes = [f"σt·S {optical:.2g}"]
+    scale = 1.0
     if rng.random() < 0.25:
         tint = rng.uniform(0.6, 1.4, 3)
-        sigma = {"type": "rgb", "value": [float(sigma_t * t) for t in tint]}
+        # an RGB value in [0, 1] (Mitsuba's) times the medium's scale
+        sigma = {"type": "rgb", "value": [float(t / tint.max()) for t in tint]}
+        scale = float(sigma_t * tint.max())
         notes.append("coloured σt")
     else:
         sigma = float(sigma_t)
@@ -120,7 +123,7 @@ def _medium(rng) -> tuple[dict, list]:
         g = float(rng.uniform(0.1, 0.6))
         phase = {"type": "hg", "g": g}
         notes.append(f"hg {g:.2f}")
-    return {"sigma_t": sigma, "albedo": albedo, "phase": phase}, notes
+    return {"sigma_t": sigma, "scale": scale, "albedo": albedo, "phase": phase}, notes
 
 
 def _box(centre, half, reflectance=0.5) -> dict:
