@@ -13,7 +13,7 @@ import numpy as np
 from ..core.light_transport import (color, phase_eval, point, sample_light, scalar, segment_box,
                                     segment_weight)
 from .blockers import mode_visibility
-from .kernel.local import Angles, LocalKernel, interval_bounds, query_x_max
+from .kernel.local import Angles, LocalKernel, interval_bounds, query_x, query_x_max
 from .last_interval import factor_arrays
 from .light_rays.local import LocalLightRays
 from .queries import EpipolarQueries
@@ -85,6 +85,7 @@ def reaches_asymptote_band(queries: EpipolarQueries, rays: LocalLightRays,
     well before its limit angle, and the plain kernel is used."""
     if not band_cells or not queries.count:
         return False
+    query_x(queries.whole_frame)    # the separated kernel's reads of the queries, with this test
     delta = dr.gather(mi.Float, rays.delta_gamma, mi.UInt32(0))
     near = queries.gamma_end >= (math.pi - queries.beta) - (band_cells + 2) * delta
     return bool(dr.any(near & (queries.beta < math.pi))[0])

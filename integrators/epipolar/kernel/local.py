@@ -336,12 +336,15 @@ def query_x_max(queries: EpipolarQueries) -> float:
 
 
 def query_x(queries: EpipolarQueries) -> mi.Float:
-    """x = tan(β/2) tan(γ_end/2) of every query's end point, evaluated once
-    per frame's queries (the kernel's grid and the frame's choices read
-    its largest)."""
+    """x = tan(β/2) tan(γ_end/2) of every query's end point, made once per
+    frame's queries (the kernel's grid and the frame's choices read its
+    largest) and scheduled: evaluated by the next kernel over the queries
+    (the asymptote band's test,
+    :func:`~integrators.epipolar.local_query_terms.reaches_asymptote_band`,
+    asks for it first) or where it is read."""
     def make():
         x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
-        dr.eval(x)
+        dr.schedule(x)
         return x
     return frame_memo(queries, ("query_x",), make)
 
