@@ -118,6 +118,10 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     # ÷Δγ as Dr.Jit compiles a division by a literal: × its float32 reciprocal
     j_a = dr.floor((math.pi - queries.beta) * scalar(np.float32(1.0) / delta32) - band_cells)
     g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
+    # read below (and the frame's x, by the kernel's domain): with the
+    # compression's mask, one kernel
+    dr.schedule(g_a, k0, last.k0)
+    query_x(queries.whole_frame)
     idx = dr.compress((g_a <= k0) & (queries.beta < math.pi))
     if not dr.width(idx):
         return out
@@ -126,6 +130,7 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     owner, c = lane // per, lane % per
     q = dr.gather(mi.UInt32, idx, owner)
     g = dr.gather(mi.Float, g_a, q) + mi.Float(c)
+    dr.schedule(q, g)               # read below: with the compression's mask
     keep = dr.compress(g <= dr.gather(mi.Float, k0, q))
     q, g = dr.gather(mi.UInt32, q, keep), mi.UInt32(dr.gather(mi.Float, g, keep))
     row = dr.gather(mi.UInt32, queries.row, q)
