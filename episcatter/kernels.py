@@ -128,10 +128,12 @@ def literal_changes(before: KernelLog, after: KernelLog) -> list:
 
 
 @contextmanager
-def launch_sites(roots=("integrators", "rectify")):
+def launch_sites(roots=("integrators", "rectify"), sequence: list | None = None):
     """Count the JIT kernels launched inside the block by the source line
     that launched them: a ``Counter`` of ``"path:line function"`` (paths
-    under one of ``roots``, relative to the repository).
+    under one of ``roots``, relative to the repository); ``sequence``: a
+    list that gets ``(site, lanes)`` of every kernel in launch order (what
+    to fuse next: neighbours of one width).
 
     A kernel runs when a line needs an array's values (a read-back, a
     gather or scatter from an unevaluated array, ``dr.eval``); this traces
@@ -150,9 +152,11 @@ def launch_sites(roots=("integrators", "rectify")):
     last = ["<before the first traced line>"]
 
     def charge():
-        n = len(drain_jit_kernels())
-        if n:
-            sites[last[0]] += n
+        kernels = drain_jit_kernels()
+        if kernels:
+            sites[last[0]] += len(kernels)
+            if sequence is not None:
+                sequence.extend((last[0], k.get("size")) for k in kernels)
 
     def where(frame) -> str:
         return f"{frame.f_code.co_filename[len(top):]}:{frame.f_lineno} {frame.f_code.co_name}"

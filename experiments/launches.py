@@ -14,7 +14,9 @@ warm render under a line tracer): where the next launch to remove is.
 
 Writes ``results/launches/``: ``runs.csv``, ``runs.json``, ``table.md``
 (with the launch sites).
-``python -m experiments.launches [--size 640x480] [--scenes ...] [--quick]``.
+``python -m experiments.launches [--size 640x480] [--scenes ...] [--quick]``;
+``python -m experiments.launches --trace SCENE METHOD [WxH]`` prints one
+warm frame's kernels in launch order, each with its source line and lanes.
 """
 from __future__ import annotations
 
@@ -79,7 +81,34 @@ def report(rows: list[dict], s: dict, repeats: int) -> str:
     return out
 
 
+def trace(scene_name: str, method: str, size=(640, 480)) -> list:
+    """(source line, lanes) of every kernel one warm frame of ``method`` on
+    suite scene ``scene_name`` launches, in launch order
+    (:func:`episcatter.kernels.launch_sites`' ``sequence``)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from episcatter.kernels import launch_sites
+
+    scene = c.load(c.scene_file(scene_name), c.resolution(*size))
+    integ = c.build(method, {})
+    dr.eval(mi.render(scene, integrator=integ, spp=1))
+    sequence = []
+    with launch_sites(sequence=sequence):
+        dr.eval(mi.render(scene, integrator=integ, spp=1))
+    return sequence
+
+
 def main(argv=None) -> list[dict]:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--trace"]:
+        if len(argv) < 3:
+            raise SystemExit("usage: python -m experiments.launches --trace SCENE METHOD [WxH]")
+        size = tuple(int(v) for v in argv[3].split("x")) if len(argv) > 3 else (640, 480)
+        sequence = trace(argv[1], argv[2], size)
+        for i, (site, lanes) in enumerate(sequence, 1):
+            print(f"{i:4d} {lanes:>10} {site}")
+        return []
     return c.run_table_experiment(sys.modules[__name__], argv)
 
 

@@ -107,9 +107,14 @@ def test_launch_sites_charge_the_lines_that_launch():
     scene = c.load(c.scene_file("point_fog"), c.resolution(32, 24))
     integ = mi.load_dict({"type": "raymarch"})
     dr.eval(mi.render(scene, integrator=integ, spp=1))
-    with launch_sites() as sites:
+    sequence = []
+    with launch_sites(sequence=sequence) as sites:
         dr.eval(mi.render(scene, integrator=integ, spp=1))
     assert sum(sites.values()) >= 4
+    # the sequence: every kernel once, in order, with its lanes
+    assert len(sequence) == sum(sites.values())
+    assert all(sites[site] and lanes >= 1 for site, lanes in sequence)
+    assert sequence[-1][1] == 32 * 24        # the film, last
     assert all(site.split(":")[0].startswith(("integrators/", "rectify/")) or site.startswith("<")
                for site in sites)
     assert any("capture" in site for site in sites)
