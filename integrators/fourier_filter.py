@@ -468,28 +468,25 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             return False
         return self.visibility == "exact" or light_model(params).direct_sum_by_default
 
-    def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None,
-                 rows=None, lazy: bool = False):
+    def filtered(self, queries, smap, cover, w, clamp: bool, band: bool | None = None):
         """Prefilter the weights ``w`` (one filter; ``prefilter`` stage) and
         evaluate the series visibility of every query (``evaluate``);
         ``band`` True: ``(V, drop)``, also the series' drop across the
         near-step band (:func:`~integrators.fourier.rectified_map.near_step_weight`);
-        False: ``(V, 0)``.  ``rows``: the rows to filter (others read
-        visibility 1; :func:`~integrators.fourier.rectified_map.prefilter_rows`);
-        ``lazy``: the visibility left for its reader's kernel."""
+        False: ``(V, 0)``."""
         opt = self.filter_settings
         with self.stage("prefilter") as keep:
-            fb = prefilter_rows(smap, w, opt, rows)
+            fb = prefilter_rows(smap, w, opt)
             if fb is not None:
                 keep.extend([fb.B_bar, fb.W])
         with self.stage("evaluate") as keep:
             if not band:
                 V = series_visibility(smap, fb, queries, cover, opt, clamp)
-                keep.extend([] if lazy else [V])
+                keep.append(V)
                 return V if band is None else (V, dr.zeros(mi.Float, queries.count))
             V, drop = series_visibility(smap, fb, queries, cover, opt, clamp,
                                         near_band(self.M))
-            keep.extend([] if lazy else [V, drop])
+            keep.extend([V, drop])
         return V, drop
 
     def interpolated_average(self, params, queries, rays, smap, cover, L, sigma_t: float,

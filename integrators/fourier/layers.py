@@ -17,9 +17,9 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.opaque import Divisor, opaque_scalar, scalar_u32, two_or_more
-from .prefilter import FilteredBasis, filtered_visibility, prefix_filter
-from .rectified_map import (RectifiedShadowMap, filter_depths, near_step_weight, product_weights,
+from ..core.opaque import opaque_scalar, scalar_u32, two_or_more
+from .prefilter import FilteredBasis, filtered_visibility
+from .rectified_map import (RectifiedShadowMap, near_step_weight, prefilter_rows, product_weights,
                             stacked_class_sums)
 from .references import interpolated_sum, row_kernel
 
@@ -47,28 +47,15 @@ def prefilter_layers(smap: RectifiedShadowMap, L, K, counts, first: int, layers:
     one after another, :func:`~integrators.fourier.references.row_kernel`)
     and filters only the rows that have it (``counts[row] > l``: the rows'
     layer counts)."""
-    z, bounds = filter_depths(smap, opt.regions)
-    d_o, size = scalar_u32(smap.d), scalar_u32(dr.width(smap.lit))
-    src_rows = two_or_more(smap.rows)
-    per = Divisor(dr.width(src_rows))
-    first_o = opaque_scalar(mi.UInt32, first)
+    size, first_o = scalar_u32(dr.width(smap.lit)), opaque_scalar(mi.UInt32, first)
 
-    def layer_row(row_out):
-        l, r = per.divmod(row_out)
-        return l + first_o, dr.gather(mi.UInt32, src_rows, r)
+    def weights(l, texel):
+        return (dr.gather(mi.Float, L, texel)
+                * dr.gather(mi.Float, K, (l + first_o) * size + texel))
 
-    def weights(row_out, i):
-        l, src = layer_row(row_out)
-        texel = src * d_o + i
-        w = dr.gather(mi.Float, L, texel) * dr.gather(mi.Float, K, l * size + texel)
-        return dr.select(dr.gather(mi.Bool, smap.series, texel), w, 0.0)
-
-    def rows(row_out):
-        l, src = layer_row(row_out)
-        return dr.gather(mi.UInt32, counts, src) > l
-
-    return prefix_filter(z, weights, opt.M, opt.regions, opt.fit_depth, bounds=bounds,
-                         rows=rows, layers=layers)
+    return prefilter_rows(smap, weights if layers > 1 else (lambda texel: weights(0, texel)),
+                          opt, layers,
+                          rows=lambda l, src: dr.gather(mi.UInt32, counts, src) > l + first_o)
 
 
 def layer_visibility(smap: RectifiedShadowMap, fb: FilteredBasis, first: int, queries, cover,

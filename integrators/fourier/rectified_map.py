@@ -325,26 +325,36 @@ def filter_depths(smap: RectifiedShadowMap, regions: int):
     return frame_memo(smap, ("filter_depths", regions), make)
 
 
-def prefilter_rows(smap: RectifiedShadowMap, w, opt: FilterSettings,
+def prefilter_rows(smap: RectifiedShadowMap, w, opt: FilterSettings, layers: int = 1,
                    rows=None) -> FilteredBasis | None:
     """Filtered-basis textures of the filtered rows with texel weights ``w``
     (n·d, ≥ 0, or a function of the texel: :func:`texel_weight`; zeroed
     outside the series texels) (Listings 2-3), read in the filter's loop.
-    ``rows``: ``None`` or a function of row indices (< n) telling the
-    rows to filter; the others' textures stay 0 (visibility 1 where read)."""
+    ``layers`` > 1: that many filters of the rows stacked
+    (:func:`~integrators.fourier.prefilter.prefix_filter`'s ``layers``),
+    ``w(l, texel)`` the weights of layer ``l``; ``rows``: ``None`` or
+    ``rows(l, row)``, whether layer ``l`` filters row ``row`` (< n; the
+    others' textures stay 0: visibility 1 where read)."""
     if smap.n_filtered == 0:
         return None
     z, bounds = filter_depths(smap, opt.regions)
     d_o = scalar_u32(smap.d)
     src_rows = two_or_more(smap.rows)           # as gather_rows numbers them
+    per = Divisor(dr.width(src_rows))
+
+    def at(row):                                # (layer, source row) of a stacked row
+        l, r = per.divmod(row) if layers > 1 else (0, row)
+        return l, dr.gather(mi.UInt32, src_rows, r)
 
     def weights(row, i):
-        texel = dr.gather(mi.UInt32, src_rows, row) * d_o + i
-        return dr.select(dr.gather(mi.Bool, smap.series, texel), texel_weight(w, texel), 0.0)
+        l, src = at(row)
+        texel = src * d_o + i
+        value = w(l, texel) if layers > 1 else texel_weight(w, texel)
+        return dr.select(dr.gather(mi.Bool, smap.series, texel), value, 0.0)
 
-    active = None if rows is None else (lambda row: rows(dr.gather(mi.UInt32, src_rows, row)))
+    active = None if rows is None else (lambda row: rows(*at(row)))
     return prefix_filter(z, weights, opt.M, opt.regions, opt.fit_depth, bounds=bounds,
-                         rows=active)
+                         rows=active, layers=layers)
 
 
 def series_visibility(smap: RectifiedShadowMap, fb: FilteredBasis | None, queries,

@@ -93,12 +93,6 @@ class ReferenceRays:
     node: mi.UInt32       # (Q,) k: the query's lower reference ray
     frac: mi.Float        # (Q,) f ∈ [0, 1]: its position toward ray k + 1
 
-    def share(self, k: int) -> mi.Float:
-        """(Q,) the weight of reference ray ``k`` in each query's mix
-        (``k`` a kernel parameter: every ray shares one kernel)."""
-        f, k = self.frac, scalar_u32(k)
-        return dr.select(self.node == k, 1.0 - f, dr.select(self.node + 1 == k, f, 0.0))
-
 
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
                    spacing: float = SPACING) -> ReferenceRays:
