@@ -40,6 +40,7 @@ import numpy as np
 
 from experiments.random_scenes import light_dict
 
+
 #: the scene archetypes (module doc), in the order the seeds take them
 ARCHETYPES = ("window_room", "bar_lattice", "light_in_view", "colonnade", "canopy")
 #: the room's half size (world units)

@@ -5,6 +5,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+
 if mi.variant() is None:
     mi.set_variant("llvm_ad_rgb")
 
