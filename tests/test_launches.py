@@ -16,11 +16,11 @@ MINMAX_LAUNCHES = 40
 #: what a warm epipolar_tree frame launches today (the issue's target is
 #: 40; a regression guard, not the target), and fourier_filter's on
 #: directional scenes (its point and spot lights are far above)
-TREE_LAUNCHES = 60
+TREE_LAUNCHES = 50
 FILTER_DIRECTIONAL_LAUNCHES = 40
 #: ... and with a point or spot light (a regression guard: the issue's
 #: target is 40)
-FILTER_LOCAL_LAUNCHES = 100
+FILTER_LOCAL_LAUNCHES = 90
 
 
 def _warm_log(scene, integ):
