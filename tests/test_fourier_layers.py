@@ -54,8 +54,8 @@ def test_stacked_class_sums_are_each_rays_sums(monkeypatch, limit_rays):
     per_lane = [np.asarray(x) for x in table.at(mi.UInt32(lane_k))]
     for k in range(count):
         got = table.of(k)
-        one = rm.class_and_total_sums(smap, cover, rm.product_weights(mi.Float(L), mi.Float(K),
-                                                                      k * size))
+        w = rm.kernel_weights(mi.Float(L), mi.Float(K), size)
+        one = rm.class_and_total_sums(smap, cover, lambda t: w(k, t))
         for c, (a, b) in enumerate(zip(got, one)):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
             np.testing.assert_array_equal(per_lane[c][lane_k == k], np.asarray(a)[lane_k == k])

@@ -1,6 +1,7 @@
 """The end runs of fourier_filter (integrators.fourier.tail) and the
 series' near-step band (integrators.fourier.basis) against NumPy oracles."""
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -72,6 +73,15 @@ def test_tail_correction_replaces_the_map_on_the_runs():
             lit = float(np.float32(beta[i]) <= bb[row[i], g])
             expected[i] += w[row[i] * d + g] * c * (V[base[i] + s] - lit)
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5)
+    # several weightings at once (layer l's at l·Q + q): each bit for bit its own
+    layers = rng.uniform(0.1, 2.0, (3, n * d)).astype(np.float32)
+    flat = mi.Float(layers.ravel())
+    stacked = np.asarray(tail.correction(
+        q, cover, mi.Float(bb.ravel()),
+        lambda l, t: dr.gather(mi.Float, flat, l * (n * d) + t), layers=3))
+    for l in range(3):
+        one = np.asarray(tail.correction(q, cover, mi.Float(bb.ravel()), mi.Float(layers[l])))
+        np.testing.assert_array_equal(stacked[l * len(row):(l + 1) * len(row)], one)
 
 
 def test_band_drop_is_the_series_at_the_shifted_depths():

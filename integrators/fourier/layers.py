@@ -19,7 +19,7 @@ import mitsuba as mi
 
 from ..core.opaque import opaque_scalar, scalar_u32, two_or_more
 from .prefilter import FilteredBasis, filtered_visibility
-from .rectified_map import (RectifiedShadowMap, near_step_weight, prefilter_rows, product_weights,
+from .rectified_map import (RectifiedShadowMap, kernel_weights, near_step_weight, prefilter_rows,
                             stacked_class_sums)
 from .references import interpolated_sum, row_kernel
 
@@ -47,12 +47,8 @@ def prefilter_layers(smap: RectifiedShadowMap, L, K, counts, first: int, layers:
     one after another, :func:`~integrators.fourier.references.row_kernel`)
     and filters only the rows that have it (``counts[row] > l``: the rows'
     layer counts)."""
-    size, first_o = scalar_u32(dr.width(smap.lit)), opaque_scalar(mi.UInt32, first)
-
-    def weights(l, texel):
-        return (dr.gather(mi.Float, L, texel)
-                * dr.gather(mi.Float, K, (l + first_o) * size + texel))
-
+    weights = kernel_weights(L, K, dr.width(smap.lit), first)
+    first_o = opaque_scalar(mi.UInt32, first)
     return prefilter_rows(smap, weights if layers > 1 else (lambda texel: weights(0, texel)),
                           opt, layers,
                           rows=lambda l, src: dr.gather(mi.UInt32, counts, src) > l + first_o)
@@ -93,10 +89,11 @@ def layered_average(params, queries, rays, smap: RectifiedShadowMap, cover, L, s
     # the class sums and the tail correction
     sums = stacked_class_sums(smap, cover, L, K, refs.count)
     corrections = None
-    if tail is not None:
-        corrections = [tail.correction(queries, cover, beta_b, product_weights(L, K, k * size))
-                       for k in range(refs.count)]
+    if tail is not None:     # every ray's at ray·Q + query, one kernel
+        corrections = tail.correction(queries, cover, beta_b, kernel_weights(L, K, size),
+                                      refs.count)
         dr.eval(corrections)
+    Q_o = scalar_u32(queries.count)
     ones = dr.full(mi.Float, 1.0, queries.count)
 
     def layer_sums(first, count):
@@ -116,10 +113,8 @@ def layered_average(params, queries, rays, smap: RectifiedShadowMap, cover, L, s
             lit, series, P = sums.at(k, use)
             S = lit + series * V
             if corrections is not None:
-                corr = corrections[0]
-                for j in range(1, refs.count):
-                    corr = dr.select(k == scalar_u32(j), corrections[j], corr)
-                S += corr
+                S += dr.gather(mi.Float, corrections,
+                               k * Q_o + dr.arange(mi.UInt32, queries.count), use)
             return S, P, near_step_weight(series, drop)
         return of
 

@@ -295,20 +295,21 @@ class FilterSettings:
 def texel_weight(w, texel) -> mi.Float:
     """Texel weights ``w`` at flat texels ``texel``: ``w`` an (n·d) array,
     a width-1 weight of every texel, or a function of the texel index
-    (weights made from evaluated arrays where they are read, e.g.
-    :func:`product_weights`: no texel array of their own)."""
+    (weights made from evaluated arrays where they are read, e.g. one
+    layer of :func:`kernel_weights`: no texel array of their own)."""
     if callable(w):
         return w(texel)
     return w if dr.width(w) == 1 else dr.gather(mi.Float, w, texel)
 
 
-def product_weights(L, K, at: int = 0):
-    """The texel weights ``L · K`` (``L`` (n·d), ``K`` read from entry
-    ``at`` on: one of several kernels laid one after another; both
-    evaluated) as a function of the texel index (:func:`texel_weight`):
-    each reader multiplies them where it reads them."""
-    offset = opaque_scalar(mi.UInt32, at)
-    return lambda texel: dr.gather(mi.Float, L, texel) * dr.gather(mi.Float, K, texel + offset)
+def kernel_weights(L, K, size: int, first: int = 0):
+    """The texel weights ``L · K_l`` of layer ``l`` (``L`` (n·d), ``K`` the
+    layers' kernels one after another from layer ``first``, ``size`` = n·d
+    each; both evaluated) as a function ``w(l, texel)``, multiplied where
+    it is read (no texel array of its own)."""
+    size_o, first_o = scalar_u32(size), opaque_scalar(mi.UInt32, first)
+    return lambda l, texel: (dr.gather(mi.Float, L, texel)
+                             * dr.gather(mi.Float, K, (l + first_o) * size_o + texel))
 
 
 def filter_depths(smap: RectifiedShadowMap, regions: int):
@@ -470,17 +471,15 @@ class ClassSums:
 
 def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> ClassSums:
     """:func:`class_and_total_sums` of the weights ``L · K_k`` of each of
-    ``count`` kernels laid one after another in ``K`` (``count``·n·d; as
-    :func:`product_weights`), bit for bit, as few prefix sums as
+    ``count`` kernels laid one after another in ``K`` (``count``·n·d;
+    :func:`kernel_weights`), bit for bit, as few prefix sums as
     ``STACK_LIMIT`` allows (one for a frame's reference rays)."""
     size = dr.width(smap.lit)
     per = max(1, STACK_LIMIT // (3 * size))
     batches = []
     for first in range(0, count, per):
         n = min(per, count - first)
-        base = opaque_scalar(mi.UInt32, first * size)
-        stack = _class_stack(smap, lambda k, g: dr.gather(mi.Float, L, g) * dr.gather(
-            mi.Float, K, base + k * scalar_u32(size) + g), n)
+        stack = _class_stack(smap, kernel_weights(L, K, size, first), n)
         dr.eval(stack)
         batches.append((first, n, dr.block_prefix_sum(stack, cover.d, exclusive=True), stack))
     return ClassSums(cover, size, count, batches)

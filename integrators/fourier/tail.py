@@ -76,22 +76,29 @@ class TailVisibility:
                               dr.gather(mi.UInt32, self.base, idx), self.V, self.traced,
                               self.slots)
 
-    def correction(self, queries, cover, beta_b, w) -> mi.Float:
+    def correction(self, queries, cover, beta_b, w, layers: int = 1) -> mi.Float:
         """(Q,) Σ over each traced run of w_g c_g (V_traced − V_map): what
         the traced run changes in a weighted sum over the query's texels
         that counted the map's visibility there (``w`` per texel:
         :func:`~integrators.fourier.rectified_map.texel_weight`; ``c_g``
-        the covered part).  0 where nothing was traced."""
+        the covered part).  0 where nothing was traced.  ``layers`` > 1:
+        that many weightings ``w(l, texel)`` at once (layer ``l``'s
+        corrections at ``l·Q + q``), in one kernel whatever their number."""
+        weight = ((lambda t, q: texel_weight(w, t)) if layers == 1
+                  else (lambda t, q, l: w(l, t)))
         return self.delta(queries.row, cover.texel, cover.frac, queries.beta, beta_b, cover.d,
-                          lambda t, q: texel_weight(w, t))
+                          weight, layers)
 
-    def delta(self, row, texel, frac, beta, beta_b, d: int, weight) -> mi.Float:
+    def delta(self, row, texel, frac, beta, beta_b, d: int, weight,
+              layers: int = 1) -> mi.Float:
         """:meth:`correction` for queries given by their arrays (row, last
         covered texel ``texel`` (flat), its covered fraction, β; this
         object's ``first``/``base`` are theirs, e.g. a :meth:`subset`) and
         weights ``weight(t, q)`` of flat texels ``t`` for queries ``q``
-        (indices into those arrays)."""
-        out = dr.zeros(mi.Float, dr.width(beta))
+        (indices into those arrays); ``layers`` > 1: ``weight(t, q, l)``
+        of each layer, (layers·Q) out."""
+        count = dr.width(beta)
+        out = dr.zeros(mi.Float, layers * count)
         if not self.traced:
             return out
         # the arrays read below made in one kernel where they are not yet
@@ -102,6 +109,9 @@ class TailVisibility:
         if not dr.width(q):
             return out
         q = two_or_more(q)          # a single query: summed and written twice
+        if layers > 1:              # (layer, traced query) lanes
+            layer, i_q = Divisor(dr.width(q)).divmod(dr.arange(mi.UInt32, layers * dr.width(q)))
+            q = dr.gather(mi.UInt32, q, i_q)
         row0 = dr.gather(mi.UInt32, row, q) * scalar_u32(d)
         last = dr.gather(mi.UInt32, texel, q)
         f = dr.gather(mi.Float, frac, q)
@@ -117,8 +127,9 @@ class TailVisibility:
             lit = b <= dr.gather(mi.Float, beta_b, t, on)
             traced = dr.gather(mi.Float, self.V, base + i, on)
             delta = traced - dr.select(lit, 1.0, 0.0)
-            total += dr.select(on, weight(t, q) * c * delta, 0.0)
-        dr.scatter(out, total, q)
+            w = weight(t, q) if layers == 1 else weight(t, q, layer)
+            total += dr.select(on, w * c * delta, 0.0)
+        dr.scatter(out, total, q if layers == 1 else layer * scalar_u32(count) + q)
         return out
 
     def runs(self) -> mi.Bool:
