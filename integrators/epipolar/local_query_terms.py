@@ -147,7 +147,7 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     a, nA, d, CA, N = factor_arrays(A, True)
     bb, nB, _, CB, _ = factor_arrays(B, True)
     leaf = row * d + g
-    slot = dr.gather(mi.UInt32, queries.slot, q)
+    slot = queries.slot_of(q)
     if L is not None:
         l, nL, _, CL, _ = factor_arrays(L, False)
     sigma_t = np.asarray(params.medium.sigma_t, np.float64)

@@ -66,6 +66,12 @@ class EpipolarQueries:
         """Flat index ``row·r + col`` of each query in (n, r) maps."""
         return self.row * opaque_scalar(mi.UInt32, self.r) + self.col
 
+    def slot_of(self, q: mi.UInt32) -> mi.UInt32:
+        """:attr:`slot` of the queries ``q``, computed where it is read (a
+        gather from :attr:`slot` would evaluate it: a kernel of its own)."""
+        return (dr.gather(mi.UInt32, self.row, q) * opaque_scalar(mi.UInt32, self.r)
+                + dr.gather(mi.UInt32, self.col, q))
+
     def padded(self, values, fill: float) -> mi.Float:
         """(n·r,) map with the queries' ``values`` in their slots, ``fill`` elsewhere."""
         out = dr.full(mi.Float, fill, self.n * self.r)

@@ -77,7 +77,7 @@ class KernelParts:
         # kernel and one read for all N
         term, q = Divisor(queries.count).divmod(dr.arange(mi.UInt32, N * queries.count))
         b_all = dr.gather(mi.Float, B.array,
-                          dr.gather(mi.UInt32, queries.slot, q) * stride + scalar_u32(c * N) + term)
+                          queries.slot_of(q) * stride + scalar_u32(c * N) + term)
         used = dr.zeros(mi.UInt32, N)
         dr.scatter_reduce(dr.ReduceOp.Max, used, mi.UInt32(b_all != 0.0), term)
         used = np.asarray(used)
