@@ -401,9 +401,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 V = dr.select(U > 0.0, S / U, 1.0)
                 keep.extend([U, V])
             return U, V, None
-        with self.stage("evaluate") as keep:
-            U = parts.unshadowed(cover, queries)
-            keep.append(U)
+        # U evaluated with V and the fallback's mask, at the end (one kernel)
+        U = parts.unshadowed(cover, queries)
         refs = None
         if self.weights == "reference_ray":
             if ("refs", sigma_t) not in kernels:
@@ -427,7 +426,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             if self.clamp:
                 V = dr.clip(V, 0.0, 1.0)
             bad = series_unreliable(near, S, P) if self.exact_fallback else None
-            keep.extend([V] + ([] if bad is None else [bad]))
+            keep.extend([U, V] + ([] if bad is None else [bad]))
         return U, V, bad
 
     def fallback(self, params, queries, rays, beta_b, cover, Ls, sigma_ts, tail, V,

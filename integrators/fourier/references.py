@@ -176,21 +176,24 @@ def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=No
     returns ``sums(k, active)``, the tuple X_k of each query's ray ``k``
     (where ``active``).  One kernel per batch whatever the number of rays;
     the sums added in the order of k (bit for bit one ray at a time).
-    ``evaluate``: a context manager whose yielded list is evaluated at its
-    exit (a timed stage), or ``None``."""
+    The sums of every batch but the last are evaluated (``evaluate``: a
+    context manager whose yielded list is evaluated at its exit, a timed
+    stage; ``None``: plainly); the last batch's are left to the caller's
+    kernel."""
     out = None
-    for first, count in batches:
+    for i, (first, count) in enumerate(batches):
         sums_of = layer_sums(first, count)
-        with (evaluate() if evaluate is not None else contextlib.nullcontext([])) as keep:
-            lo, hi = opaque_scalar(mi.UInt32, first), opaque_scalar(mi.UInt32, first + count)
-            for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
-                use = (share > 0.0) & (k >= lo) & (k < hi)
-                sums = sums_of(k, use)
-                if out is None:
-                    out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
-                out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
-            keep.extend(out)
-        dr.eval(out)
+        lo, hi = opaque_scalar(mi.UInt32, first), opaque_scalar(mi.UInt32, first + count)
+        for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
+            use = (share > 0.0) & (k >= lo) & (k < hi)
+            sums = sums_of(k, use)
+            if out is None:
+                out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+            out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+        if i + 1 < len(batches):
+            with (evaluate() if evaluate is not None else contextlib.nullcontext([])) as keep:
+                keep.extend(out)
+            dr.eval(out)
     return tuple(out)
 
 
