@@ -13,6 +13,7 @@ import numpy as np
 from ..core.opaque import Divisor, scalar_u32, uints
 from ..epipolar.last_interval import LastInterval
 from ..epipolar.light_rays.directional import LightRays
+from ..epipolar.queries import frame_memo
 from .rectified_map import Coverage, query_beta_range, reference_angle
 from .references import row_kernel
 
@@ -48,6 +49,20 @@ def channels(L: mi.TensorXf, A: mi.TensorXf | None, sigma_t) -> int:
     return max(_channel_count(L, 2), kernel)
 
 
+def used_components(queries, B) -> np.ndarray:
+    """(C, N) whether some query's B of channel c, component i is not 0
+    (the components a channel's sums need), for every channel in one
+    kernel and one read, once per frame's queries and B."""
+    def make():
+        C, N = B.shape[2], B.shape[3]
+        term, q = Divisor(queries.count).divmod(dr.arange(mi.UInt32, C * N * queries.count))
+        b_all = dr.gather(mi.Float, B.array, queries.slot_of(q) * scalar_u32(C * N) + term)
+        used = dr.zeros(mi.UInt32, C * N)
+        dr.scatter_reduce(dr.ReduceOp.Max, used, mi.UInt32(b_all != 0.0), term)
+        return np.asarray(used).reshape(C, N)
+    return frame_memo(queries, ("used_components", B), make)
+
+
 class KernelParts:
     """One colour channel of the separated integrand: L (n·d) per light ray,
     A_n (n·d) per light ray (directional: at its start; point/spot: its
@@ -73,14 +88,7 @@ class KernelParts:
         C, N = A.shape[2], A.shape[3]
         c = min(c, C - 1)
         stride = scalar_u32(C * N)
-        # which components this channel uses (some query's B is not 0): one
-        # kernel and one read for all N
-        term, q = Divisor(queries.count).divmod(dr.arange(mi.UInt32, N * queries.count))
-        b_all = dr.gather(mi.Float, B.array,
-                          queries.slot_of(q) * stride + scalar_u32(c * N) + term)
-        used = dr.zeros(mi.UInt32, N)
-        dr.scatter_reduce(dr.ReduceOp.Max, used, mi.UInt32(b_all != 0.0), term)
-        used = np.asarray(used)
+        used = used_components(queries, B)[c]
         A_c, B_c = [], []
         for i in range(N):
             if not used[i]:             # unused component of this channel
