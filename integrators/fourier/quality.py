@@ -7,6 +7,13 @@ the answer when it meets the target and otherwise gives F and C. Where F
 alone misses the target the rule switches to ``weights="exact"`` (which
 removes most of F) and picks M from the series term C·M^k alone.
 
+Where the method's defaults take the exact visibility sum instead of the
+series (a directional light, ``visibility="exact_directional"``), the
+series only approximates that sum: the rule measures the defaults and
+returns them, flagged over budget where they miss it (no setting of the
+series does better; on the held-out thick-fog shafts the series gave
+relMSE 0.03-0.8 at any M where the defaults gave 3e-6).
+
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
 the plugin registers :data:`FILTER_RULE`.
 """
@@ -79,10 +86,18 @@ def predicted_coefficients(e1: float, budget: float, fit=None) -> int:
 
 
 def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
-    """Coefficients and weights of the filter (module doc): the first probe
-    setting if it meets the target; else the M predicted from its error
-    alone (:func:`predicted_coefficients`), rendered as the second probe
-    and returned if it meets the target; else the model through both."""
+    """Coefficients and weights of the filter (module doc): the defaults
+    where they take the exact sum (:func:`exact_by_default`); else the
+    first probe setting if it meets the target; else the M predicted from
+    its error alone (:func:`predicted_coefficients`), rendered as the
+    second probe and returned if it meets the target; else the model
+    through both."""
+    if exact_by_default(probe):
+        e0 = probe.error({})
+        probe.predict(e0, "measured")
+        if e0 > budget:
+            probe.unreachable(budget, e0)
+        return {}
     first = filter_probe(probe.diagonal)[0]
     e1 = probe.error(first)
     if e1 <= target_of(budget):
@@ -100,6 +115,21 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     if predicted > target_of(budget):
         probe.unreachable(budget, predicted)
     return settings
+
+
+def exact_by_default(probe: Probe) -> bool:
+    """Whether the method with the user's other properties (``probe.base``)
+    takes the exact visibility sum on this scene (the integrator's own
+    ``exact_visibility``: a directional light, no property of the series);
+    False for a probe without a scene (errors given, as in tests)."""
+    import mitsuba as mi
+
+    from ..core.scene_params import SceneParams
+
+    if getattr(probe, "scene", None) is None:
+        return False
+    integ = mi.load_dict({"type": probe.method, **probe.base})
+    return bool(integ.exact_visibility(SceneParams.from_scene(probe.scene, probe.sensor)))
 
 
 def filter_probe(diagonal: float) -> list[dict]:
