@@ -26,14 +26,17 @@ def host_reductions(*items) -> list:
     return out
 
 
-def row_extremes(values, mask=None) -> tuple[float, float]:
+def row_extremes(values, mask=None, finite: bool = False) -> tuple[float, float]:
     """(min, max) of the evaluated array ``values`` over the lanes in
-    ``mask`` (evaluated, or None: all), ±inf where there are none, a NaN
-    skipped as ``dr.min``/``dr.max`` skip it: from host copies (for
-    per-row arrays: no kernel; min and max are exact in any order)."""
+    ``mask`` (evaluated, or None: all; ``finite``: the finite values
+    alone), ±inf where there are none, a NaN skipped as ``dr.min``/
+    ``dr.max`` skip it: from host copies (no kernel; min and max are exact
+    in any order)."""
     v = np.asarray(values)
     if mask is not None:
         v = v[np.asarray(mask, bool)]
+    if finite:
+        v = v[np.isfinite(v)]
     if not v.size:
         return float("inf"), float("-inf")
     return float(np.fmin.reduce(v)), float(np.fmax.reduce(v))

@@ -271,11 +271,17 @@ class Coverage:
         bit for bit its :meth:`sum`)."""
         size = dr.width(stack) // count
         P = dr.block_prefix_sum(stack, self.d, exclusive=True)
-        out = []
-        for k in range(count):
-            at = self.texel if k == 0 else self.texel + opaque_scalar(mi.UInt32, k * size)
-            out.append(dr.gather(mi.Float, P, at) + self.frac * dr.gather(mi.Float, stack, at))
-        return tuple(out)
+        return tuple(self.read(P, stack, None if k == 0 else opaque_scalar(mi.UInt32, k * size))
+                     for k in range(count))
+
+    def read(self, P, stack, offset=None, active=True) -> mi.Float:
+        """Σ_g w_g clip(D − g, 0, 1) per query of the texel array laid at
+        ``offset`` (lanes) in ``stack``, whose exclusive per-row prefix sums
+        are ``P``: the prefix up to the query's last texel plus its covered
+        fraction of that texel (0 where not ``active``)."""
+        at = self.texel if offset is None else self.texel + offset
+        return (dr.gather(mi.Float, P, at, active)
+                + self.frac * dr.gather(mi.Float, stack, at, active))
 
 
 # --------------------------------------------------------------------------
@@ -448,8 +454,8 @@ class ClassSums:
     def of(self, k: int) -> tuple:
         """The three sums of weighting ``k`` (every query)."""
         first, _, P, stack = next(b for b in self.batches if b[0] <= k < b[0] + b[1])
-        return tuple(self._at(P, stack, scalar_u32(3 * (k - first) + c) * scalar_u32(self.size))
-                     for c in range(3))
+        return tuple(self.cover.read(P, stack, scalar_u32(3 * (k - first) + c)
+                                     * scalar_u32(self.size)) for c in range(3))
 
     def at(self, k: mi.UInt32, active=True) -> tuple:
         """The three sums of weighting ``k[q]`` for each query q (0 where
@@ -459,14 +465,9 @@ class ClassSums:
             here = (mi.Bool(active) & (k >= opaque_scalar(mi.UInt32, first))
                     & (k < opaque_scalar(mi.UInt32, first + count)))
             j = k - opaque_scalar(mi.UInt32, first)
-            out = [dr.select(here, self._at(P, stack, (3 * j + c) * scalar_u32(self.size), here),
-                             x) for c, x in enumerate(out)]
+            out = [dr.select(here, self.cover.read(P, stack, (3 * j + c) * scalar_u32(self.size),
+                                                   here), x) for c, x in enumerate(out)]
         return tuple(out)
-
-    def _at(self, P, stack, offset, active=True):
-        at = self.cover.texel + offset
-        return (dr.gather(mi.Float, P, at, active)
-                + self.cover.frac * dr.gather(mi.Float, stack, at, active))
 
 
 def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> ClassSums:

@@ -123,10 +123,8 @@ class KernelParts:
         n_c = scalar_u32(count)
 
         def body(i, U):
-            at = cover.texel + i * per.d
             b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets, i))
-            return i + 1, U + b * (dr.gather(mi.Float, P, at)
-                                   + cover.frac * dr.gather(mi.Float, stack, at))
+            return i + 1, U + b * cover.read(P, stack, i * per.d)
         _, U = dr.while_loop(state=(mi.UInt32(0), U), cond=lambda i, U: i < n_c, body=body)
         return U
 

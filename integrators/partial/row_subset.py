@@ -36,6 +36,7 @@ import numpy as np
 
 from rectify.coords import direction_to_alpha_beta_reference
 
+from ..core.host_reads import row_extremes
 from ..core.light_transport import scalar
 from ..epipolar.kernel.local import query_x
 from ..epipolar.light_factor import lowest_light_side
@@ -140,10 +141,10 @@ def take_light_rays(queries: EpipolarQueries, rays):
 
 def host_finite_range(x) -> tuple:
     """(smallest, largest) finite value of the evaluated array ``x`` (None,
-    None: none), read back as a host copy: no kernel."""
-    v = np.asarray(x, np.float32)
-    v = v[np.isfinite(v)]
-    return (float(v.min()), float(v.max())) if v.size else (None, None)
+    None: none), read back as a host copy: no kernel
+    (:func:`~integrators.core.host_reads.row_extremes`)."""
+    lo, hi = row_extremes(x, finite=True)
+    return (lo, hi) if lo <= hi else (None, None)
 
 
 def frame_choices(queries: EpipolarQueries, rays) -> tuple:
