@@ -453,3 +453,23 @@ def test_the_filter_keeps_its_exact_default_for_a_directional_light():
                                "error_budget": 1e-3}).render_layers(scene, spp=1)
     assert result.stats["auto_settings"] == {}
     assert np.array_equal(np.asarray(result["full"]), default)
+
+
+def test_the_marchers_probe_sees_the_edges_of_a_spot_lit_shaft():
+    """Held-out seed 2000 (a spot light's shafts through blockers): the
+    marcher's error at 128 steps lies along the shafts' edges.  Measured on
+    a 300-pixel subset the probe saw a tenth of the full image's relMSE
+    (error_budget 1e-4 chose 180 steps and reached 9e-4); its subset now
+    sees it within 2x."""
+    from episcatter.metrics import scale_free_relmse
+    from experiments.error_budget import scene_spec
+
+    scene = scene_spec(2000, "mixed").at_resolution(128, 96).load()
+    probe = qa.Probe(scene, 0, "raymarch", {})
+    settings = {"visibility": "exact", "steps": 128}
+    estimate = probe.error(settings, partial=True)
+    ref = mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 2048})
+    true = scale_free_relmse(np.array(mi.load_dict({"type": "raymarch", **settings})
+                                      .render_layers(scene, spp=1)["full"]),
+                             np.array(ref.render_layers(scene, spp=1)["full"]))
+    assert 0.5 * true <= estimate <= 2.0 * true
