@@ -33,18 +33,21 @@ from .tree.quality import TREE_RULE
 class LightSide:
     """What the ``rectify`` stage leaves for the blockers and the sweep:
     the light rays, L per light ray, the light's colour when L is grey
-    (else None), the light rays that carry light (None: all), and D."""
+    (else None), the light rays that carry light (None: all), D, and the
+    asymptote band the frame's separated kernel needs (cells; 0: none)."""
     rays: object
     L: mi.TensorXf
     colour: object
     lit: object
     D: mi.TensorXf
+    band: int = 0
 
     def of_rows(self, queries) -> "LightSide":
         """The light side of the rows of ``queries`` (a
         :class:`~integrators.partial.row_subset.RowSubset`; a whole frame: itself)."""
         return LightSide(take_light_rays(queries, self.rays), take_rows(queries, self.L),
-                         self.colour, take_rows(queries, self.lit), take_rows(queries, self.D))
+                         self.colour, take_rows(queries, self.lit), take_rows(queries, self.D),
+                         self.band)
 
 
 class EpipolarTreeIntegrator(EpipolarIntegrator):
@@ -234,8 +237,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         # ``queries`` (all of them, or a partial render's RowSubset)
         whole = queries.whole_frame
         frame_side = self.light_side(params, cap, whole, model)
-        # the asymptote band only where some view ray of the frame reaches it
-        band = model.band_for(whole, frame_side.rays, self.ASYMPTOTE_BAND)
+        band = frame_side.band
         self.record(frame_choices=frame_choices(whole, frame_side.rays) + (("band", band),),
                     asymptote_band=band)
         side = frame_side.of_rows(queries)
@@ -279,15 +281,19 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
     # -- stages (each timed; an experiment may call or override them) -------------
     def light_side(self, params, cap, queries, model) -> "LightSide":
         """Stage ``rectify`` (after the queries): the light rays of every
-        slice, the per-light-ray factor L (§6) and the rectified depth D."""
+        slice, the per-light-ray factor L (§6), the rectified depth D and
+        the asymptote band (only where some view ray of the frame reaches
+        it; its test, with the other reads of the queries, in one kernel
+        with the blockers' map of the queries' β)."""
         with self.stage("rectify") as keep:
             rays = model.light_rays(params, queries, self.light_rays, cap)
             L, colour, lit = model.light_factor(params, queries, rays, self.prefilter)
             D = rectified_depth(queries, rays)
             dr.schedule(D.array)
             beta_map(queries)       # the blockers' map of the queries' β, with D
+            band = model.band_for(params, queries, rays, self.ASYMPTOTE_BAND)
             keep.extend([D.array, L.array])
-        return LightSide(rays, L, colour, lit, D)
+        return LightSide(rays, L, colour, lit, D, band)
 
     def blocker_stage(self, params, cap, queries, side: "LightSide"):
         """Stage ``blockers``: the blocker map S and its §7 depth modes."""

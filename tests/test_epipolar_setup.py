@@ -717,3 +717,35 @@ def test_sweep_magnitude_against_numpy(coloured):
     np.testing.assert_allclose(np.array(U).T, U_np, rtol=2e-5, atol=2e-5 * M_np.max())
     got_bad = np.array(M).T * es_last_interval.UNRESOLVED_RATIO > np.abs(np.array(U).T)
     assert got_bad.any() and not got_bad.all()
+
+
+def test_the_phase_table_is_read_once_per_phase_function():
+    """The SVD's phase table (and an isotropic phase's constant) are read
+    back from Mitsuba once per phase function: a second frame of the same
+    one launches no kernel for them; changing g gives a new table, equal to
+    Mitsuba's phase function at the new g."""
+    import drjit as dr
+
+    from episcatter.kernels import kernel_log
+    from integrators.epipolar.kernel.local import phase_table
+    from tests.conftest import scene_dict
+
+    scene = mi.load_dict(scene_dict(light="point", phase={"type": "hg", "g": 0.3}))
+    s = np.linspace(0.0, 2.0 * np.pi, 9)
+    first = phase_table(SceneParams.from_scene(scene))(s)
+    params = SceneParams.from_scene(scene)
+    with kernel_log() as log:
+        again = phase_table(params)(s)
+    assert log.launched == 0
+    np.testing.assert_array_equal(first, again)
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith(".g") or k == "g")
+    params[key] = 0.6
+    params.update()
+    changed = phase_table(SceneParams.from_scene(scene))(s)
+    g = 0.6
+    cos_t = -np.cos(s)      # θ = π − s between −ω and the direction to the light
+    hg = (1 - g * g) / (4 * np.pi * (1 + g * g + 2 * g * cos_t) ** 1.5)
+    np.testing.assert_allclose(changed, hg, rtol=1e-4)
+    assert not np.allclose(changed, first)
+    dr.eval()

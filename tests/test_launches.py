@@ -13,14 +13,13 @@ RAYMARCH_LAUNCHES = 8
 #: ... and a warm minmax_epipolar frame: the capture, the samples, the
 #: refinement's rounds (two kernels each), the tree's blocks, the fix-up
 MINMAX_LAUNCHES = 40
-#: what a warm epipolar_tree frame launches today (the issue's target is
-#: 40; a regression guard, not the target), and fourier_filter's on
-#: directional scenes (its point and spot lights are far above)
-TREE_LAUNCHES = 50
+#: ... and a warm epipolar_tree frame, and fourier_filter's on directional
+#: scenes (its point and spot lights are above)
+TREE_LAUNCHES = 40
 FILTER_DIRECTIONAL_LAUNCHES = 40
 #: ... and with a point or spot light (a regression guard: the issue's
 #: target is 40)
-FILTER_LOCAL_LAUNCHES = 90
+FILTER_LOCAL_LAUNCHES = 75
 
 
 def _warm_log(scene, integ):
@@ -45,8 +44,10 @@ def test_a_warm_minmax_frame_launches_at_most_40_kernels(name):
 
 
 @pytest.mark.parametrize("name", ["hall", "point_fog", "spot_room", "sun_behind"])
-def test_a_warm_tree_frame_launches_few_kernels(name):
-    scene = c.load(c.scene_file(name), c.resolution(160, 120))
+def test_a_warm_tree_frame_launches_at_most_40_kernels(name):
+    """At the issue's 640×480 (the SVD's sum check may take a round more
+    on a smaller image)."""
+    scene = c.load(c.scene_file(name), c.resolution(640, 480))
     log = _warm_log(scene, mi.load_dict({"type": "epipolar_tree"}))
     assert log.launched <= TREE_LAUNCHES, [k.get("size") for k in log.entries]
 

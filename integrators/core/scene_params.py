@@ -90,6 +90,10 @@ class MediumParams:
     #: ``boundary = "convex"``: the closed convex mesh's face planes (k×4,
     #: outward unit normal n and offset c: inside where n·x <= c)
     planes: np.ndarray | None = None
+    #: the phase function's class and parameter values, read on the host:
+    #: two frames with equal ones have the same phase function (tables of
+    #: it may be kept from one frame to the next)
+    phase_signature: tuple = ()
 
     @property
     def sigma_s(self) -> np.ndarray:
@@ -306,22 +310,28 @@ def read_medium(scene, sensor) -> MediumParams:
         raise ValueError(f"Medium {_name(med)}: albedo {albedo.tolist()} exceeds 1: "
                          "set albedo to a value in [0, 1].")
     phase = med.phase_function()
-    kind = _check_phase(phase, med)
+    kind, signature = _check_phase(phase, med)
     bmin, bmax, boundary, to_local, planes = _read_boundary(scene, med)
     return MediumParams(sigma_t=sigma_t, albedo=albedo, phase_kind=kind,
                         bounds_min=bmin, bounds_max=bmax, phase=phase, medium=med,
-                        boundary=boundary, to_local=to_local, planes=planes)
+                        boundary=boundary, to_local=to_local, planes=planes,
+                        phase_signature=signature)
 
 
-def _check_phase(phase, med) -> str:
+def _check_phase(phase, med) -> tuple[str, tuple]:
+    """(kind, signature) of a supported phase function (``signature``: its
+    class and every parameter's values, :attr:`MediumParams.phase_signature`);
+    a ValueError naming what to change otherwise."""
     cls = phase.class_name()
     if cls not in SUPPORTED_PHASES:
         raise ValueError(
             f"Medium {_name(med)} uses phase function {cls}, which is not "
             f"supported: use one of {sorted(SUPPORTED_PHASES.values())}.")
     params = mi.traverse(phase)
+    signature = [cls]
     for key in params.keys():
         val = host_array(params[key])
+        signature.append((key, tuple(np.asarray(val, np.float64).ravel().tolist())))
         if key.endswith(".g") or key == "g":
             if not np.all(np.isfinite(val)) or np.any(np.abs(val) >= 1):
                 raise ValueError(f"Medium {_name(med)}: HG asymmetry g = {val.tolist()} "
@@ -329,7 +339,7 @@ def _check_phase(phase, med) -> str:
         if "weight" in key and (not np.all(np.isfinite(val)) or np.any(val < 0) or np.any(val > 1)):
             raise ValueError(f"Medium {_name(med)}: blendphase weight {val.tolist()} "
                              "must be in [0, 1].")
-    return SUPPORTED_PHASES[cls]
+    return SUPPORTED_PHASES[cls], tuple(signature)
 
 
 def _same(a, b) -> bool:

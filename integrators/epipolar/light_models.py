@@ -140,7 +140,7 @@ class LightModel:
         of a banded kernel (0: no band)."""
         return 0.0
 
-    def band_for(self, queries, rays, band_cells: int) -> int:
+    def band_for(self, params, queries, rays, band_cells: int) -> int:
         """The asymptote band a render needs: ``band_cells`` where some
         query reaches it, else 0 (only the local light has one)."""
         return 0
@@ -223,8 +223,8 @@ class Local(LightModel):
     def band_correction(self, params, queries, rays, A, B, L, modes, last, band_cells):
         return asymptote_band_correction(params, queries, rays, A, B, L, modes, last, band_cells)
 
-    def band_for(self, queries, rays, band_cells):
-        return band_cells if reaches_asymptote_band(queries, rays, band_cells) else 0
+    def band_for(self, params, queries, rays, band_cells):
+        return band_cells if reaches_asymptote_band(params, queries, rays, band_cells) else 0
 
 
 MODELS = (Directional(), Local())

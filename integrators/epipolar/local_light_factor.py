@@ -54,8 +54,10 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     is grey (L then holds the fall-off alone), else 1; ``lit`` (n·d·k,):
     existing sub-rays carrying light."""
     frame = queries.frame
+    used = rays.used(k)                       # sub-rays of existing light rays
+    dr.schedule(used)                         # with the sub-rays' kernel
     s, gamma = sub_ray_gamma(rays, k, seed, evaluated=True)
-    idx = dr.compress(rays.used(k))           # sub-rays of existing light rays
+    idx = dr.compress(used)
     w = light_ray_direction(frame, dr.gather(mi.Float, queries.alpha, dr.gather(mi.UInt32, s, idx)),
                             dr.gather(mi.Float, gamma, idx))
     I = light_intensity(params, frame, w)

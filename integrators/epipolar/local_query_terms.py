@@ -13,7 +13,7 @@ import numpy as np
 from ..core.light_transport import (color, phase_eval, point, sample_light, scalar, segment_box,
                                     segment_weight)
 from .blockers import mode_visibility
-from .kernel.local import Angles, LocalKernel, interval_bounds, query_x, query_x_max
+from .kernel.local import Angles, LocalKernel, interval_bounds, lit_domain, query_x, query_x_max
 from .last_interval import factor_arrays
 from .light_rays.local import LocalLightRays
 from .queries import EpipolarQueries
@@ -75,20 +75,26 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
     return value
 
 
-def reaches_asymptote_band(queries: EpipolarQueries, rays: LocalLightRays,
+def reaches_asymptote_band(params, queries: EpipolarQueries, rays: LocalLightRays,
                            band_cells: int) -> bool:
     """Whether any query's view ray reaches the asymptote band of
     ``band_cells`` lattice cells before its limit angle π − β (with a
     margin of one cell on each side: γ_end ≥ π − β − (band_cells + 2)·Δγ),
     i.e. whether the banded kernel and :func:`asymptote_band_correction`
     can change any query's sum.  Far from the light every view ray ends
-    well before its limit angle, and the plain kernel is used."""
+    well before its limit angle, and the plain kernel is used.  The test
+    is evaluated with the other reads of the frame's queries that the
+    separated kernel makes (its :func:`~integrators.epipolar.kernel.local.query_x`
+    and :func:`~integrators.epipolar.kernel.local.lit_domain`): one kernel."""
     if not band_cells or not queries.count:
         return False
-    query_x(queries.whole_frame)    # the separated kernel's reads of the queries, with this test
+    query_x(queries.whole_frame)
     delta = dr.gather(mi.Float, rays.delta_gamma, mi.UInt32(0))
-    near = queries.gamma_end >= (math.pi - queries.beta) - (band_cells + 2) * delta
-    return bool(dr.any(near & (queries.beta < math.pi))[0])
+    near = (queries.gamma_end >= (math.pi - queries.beta) - (band_cells + 2) * delta) \
+        & (queries.beta < math.pi)
+    dr.schedule(near)
+    lit_domain(params, queries, rays)
+    return bool(dr.any(near)[0])
 
 
 def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLightRays, A, B, L,

@@ -17,6 +17,7 @@ from rectify.epipole import EpipolarFrame
 from rectify.slices import Slices, alpha_to_slice
 
 from ..core.capture import CameraCapture
+from ..core.device_sort import argsort_keys
 from ..core.light_transport import point
 from ..core.opaque import floats, opaque_scalar, uints
 from .frame import PAD_BETA, in_ring
@@ -162,14 +163,16 @@ def _sweep_order(k: mi.UInt32, beta: mi.Float, slice_count: int) -> mi.UInt32:
     slice): one sort of the 32-bit key k·2^B + ⌊β/π·(2^B − 1)⌋, B = the bits
     the slice count leaves (≥ ``MIN_BETA_BITS``: β to π/2^20 ≈ 3e-6 rad,
     1/300 of a pixel at 1280×960; queries closer than that may swap, which
-    moves a blocker edge by as much); else two stable sorts, exact."""
+    moves a blocker edge by as much); else two stable sorts, exact.  The
+    key's sort is :func:`~integrators.core.device_sort.argsort_keys` (two
+    kernels, the first with the caller's scheduled arrays)."""
     bits = 32 - max(int(slice_count) - 1, 1).bit_length()
     if bits < MIN_BETA_BITS:
         order = dr.argsort(beta)
-        return dr.gather(mi.UInt32, order, dr.argsort(dr.gather(mi.UInt32, k, order)))
+        return dr.gather(mi.UInt32, order, argsort_keys(dr.gather(mi.UInt32, k, order)))
     scale = float((1 << bits) - 1) / math.pi
     q = mi.UInt32(dr.clip(beta * scale, 0.0, float((1 << bits) - 1)))
-    return dr.argsort((k << bits) | q)
+    return argsort_keys((k << bits) | q)
 
 
 def _slice_counts(slices: Slices, k: mi.UInt32) -> mi.UInt32:
@@ -288,13 +291,13 @@ def frame_memo(queries, key: tuple, make):
 
 
 def beta_map(queries) -> mi.Float:
-    """``queries.padded(queries.beta, PAD_BETA)``, evaluated once per
-    queries object (every search of a frame reads the same map; a caller
-    with other maps of the queries to evaluate schedules them first: one
-    kernel)."""
+    """``queries.padded(queries.beta, PAD_BETA)``, made once per queries
+    object (every search of a frame reads the same map) and scheduled: it
+    is evaluated with the next kernel over the queries, or where it is
+    first read."""
     def make():
         out = queries.padded(queries.beta, PAD_BETA)
-        dr.eval(out)
+        dr.schedule(out)
         return out
     return frame_memo(queries, ("beta_map",), make)
 

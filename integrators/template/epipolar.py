@@ -208,12 +208,12 @@ class EpipolarIntegrator(EpiscatterIntegrator):
             if queries.weight is not None:
                 values = values * queries.weight
             parts.append((queries.sample, values))
-        with self.stage("ring") as keep:
+        with self.stage("ring"):
+            # traced here; marched in the kernel that adds it into the samples
             if dr.width(queries.ring_sample):
                 parts.append((queries.ring_sample,
                               march_ring(params, cap, queries, self.ring_steps,
                                          self.ring_bisections)))
-                keep.append(parts[-1][1])
         return to_samples(queries, parts)
 
     def remarch_disagreeing(self, params, cap, queries, values):
@@ -233,8 +233,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         the whole frame so that a partial render marches what the full one
         does)."""
         with self.stage("ring"):
+            cone = cone_samples(params, queries)     # its test with the disagreement's
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
-            remarch = union_samples(queries.n_samples, remarch, cone_samples(params, queries))
+            remarch = union_samples(queries.n_samples, remarch, cone())
             self.record(remarched=dr.width(remarch))
             # with the samples the method asked for (RenderRecord.march)
             asked, self.render_record.march = self.render_record.march, []

@@ -101,11 +101,34 @@ def phase_of_angle_numpy(params, s) -> np.ndarray:
                     np.float64).reshape(s.shape)
 
 
+#: phase signature -> what was read of that phase function on the host (the
+#: isotropic value, the table); kept across frames, a few phase functions
+_PHASE_MEMO: dict = {}
+_PHASE_MEMO_SIZE = 8
+
+
+def _phase_memo(params, name: str, make):
+    """``make()``, once per phase function and ``name``: keyed by the
+    medium's :attr:`~integrators.core.scene_params.MediumParams.phase_signature`
+    (its class and parameter values), so that a frame of an unchanged phase
+    function reads nothing back (made anew where there is no signature)."""
+    signature = getattr(params.medium, "phase_signature", ())
+    if not signature:
+        return make()
+    key = (signature, name)
+    if key not in _PHASE_MEMO:
+        if len(_PHASE_MEMO) >= _PHASE_MEMO_SIZE:
+            _PHASE_MEMO.pop(next(iter(_PHASE_MEMO)))
+        _PHASE_MEMO[key] = make()
+    return _PHASE_MEMO[key]
+
+
 def _isotropic_value(params):
     """The constant f_p of an isotropic medium, else None."""
     if params.medium.phase_kind != "isotropic":
         return None
-    return float(phase_of_angle(params, mi.Float(1.0))[0])
+    return _phase_memo(params, "isotropic",
+                       lambda: float(phase_of_angle(params, mi.Float(1.0))[0]))
 
 
 #: samples of the phase table used by the SVD's NumPy sample, over s ∈ [0, π]
@@ -122,8 +145,11 @@ def phase_table(params):
     if iso is not None:
         return lambda s: iso
     n = PHASE_TABLE
-    table = phase_of_angle_numpy(params, np.linspace(0.0, np.pi, n))
-    table = np.append(table, table[-1])
+
+    def make():
+        t = phase_of_angle_numpy(params, np.linspace(0.0, np.pi, n))
+        return np.append(t, t[-1])
+    table = _phase_memo(params, "table", make)
 
     def f_p(s):
         u = (np.pi - np.abs(np.pi - np.asarray(s, np.float64))) * ((n - 1) / np.pi)

@@ -163,10 +163,14 @@ def cone_samples(params, queries: EpipolarQueries) -> mi.UInt32:
     (:func:`~integrators.epipolar.ring.remarch_samples`), at the cost of
     a few pixels' ring steps.  The budget is decided on the whole frame
     (``queries.whole_frame``), so a partial render's rows march what the
-    full render does."""
+    full render does.
+
+    Returns a function that lists them: the samples' test is queued here
+    (a scatter over the queries) and runs with the next kernel over the
+    queries -- a caller with one to launch calls this first."""
     none = dr.zeros(mi.UInt32, 0)
     if params.light.kind != "spot" or not queries.count:
-        return none
+        return lambda: none
 
     def reached(q):
         # the cone's interval of each query's row, at the query's lane (the
@@ -175,13 +179,17 @@ def cone_samples(params, queries: EpipolarQueries) -> mi.UInt32:
         reach = lit & (lo < q.gamma_end)
         hit = dr.zeros(mi.Bool, q.n_samples)
         dr.scatter(hit, True, q.sample, reach)
-        return dr.compress(hit)
+        return hit
     whole = queries.whole_frame
     frame_wide = reached(whole)
-    budget = max(CONE_MARCH_MIN, CONE_MARCH_FRACTION * queries.n_samples)
-    if dr.width(frame_wide) > budget:
-        return none
-    return frame_wide if whole is queries else reached(queries)
+    own = frame_wide if whole is queries else reached(queries)
+
+    def listed():
+        budget = max(CONE_MARCH_MIN, CONE_MARCH_FRACTION * queries.n_samples)
+        if dr.width(dr.compress(frame_wide)) > budget:
+            return none
+        return dr.compress(own)
+    return listed
 
 
 def light_ray_range(params, queries: EpipolarQueries):
