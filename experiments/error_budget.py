@@ -203,9 +203,11 @@ def scene_spec(seed: int, kind: str):
 
 
 def held_out_scenes(n, first_seed, size, kind=KIND):
-    """(name, loaded scene, reference) of the first ``n`` usable seeds of
-    :func:`scene_spec`: reference finite and lit, and the cheapest marcher
-    (:data:`CHEAPEST`) missing :data:`HARD_LEVEL`."""
+    """(name, scene spec at ``size``, reference) of the first ``n`` usable
+    seeds of :func:`scene_spec`: reference finite and lit, and the cheapest
+    marcher (:data:`CHEAPEST`) missing :data:`HARD_LEVEL`.  The specs, not
+    the loaded scenes: each is loaded when its turn comes and dropped after
+    (dozens of scenes held at once made every render 1.5x slower)."""
     import mitsuba as mi
 
     from episcatter import frontier as fr
@@ -229,7 +231,8 @@ def held_out_scenes(n, first_seed, size, kind=KIND):
             if why:
                 skipped.append((spec.name, why))
                 continue
-            out.append((spec.name, scene, ref))
+            out.append((spec.name, spec, ref))
+            del scene
             bar.update(1)
     return out, skipped
 
@@ -579,8 +582,8 @@ def main(argv=None) -> int:
     choices, sweep, probes = [], [], []
     command = "python -m experiments.error_budget " + " ".join(argv if argv is not None
                                                                else os.sys.argv[1:])
-    for name, scene, ref in scenes:        # the files are rewritten after every scene
-        c, s, pr = run_scene(name, scene, ref, args.methods, repeats,
+    for name, spec, ref in scenes:        # the files are rewritten after every scene
+        c, s, pr = run_scene(name, spec.load(), ref, args.methods, repeats,
                              lambda m: print(m, flush=True))
         choices += c
         sweep += s
