@@ -30,7 +30,7 @@ from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSe
 from .fourier.references import reference_rays
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
-                           row_shift, unshadowed_band)
+                           row_shift, unresolved_by_separation, unshadowed_band)
 from .fourier.tail import tail_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -335,6 +335,14 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
                                    self.band_cells(model, plan))
             keep.append(band)
+            if A is not None and plan is None:
+                # samples whose U the separated kernel cannot resolve: marched
+                unresolved = unresolved_by_separation(queries, A, B, L, cover)
+                keep.append(unresolved)
+        if A is not None and plan is None:
+            unresolved = dr.compress(unresolved)
+            self.render_record.march.append(unresolved)
+            self.record(unresolved=dr.width(unresolved))
         kernels = {}        # the channels of one σt share reference rays and kernels
         for c in range(C):
             parts = KernelParts.of(queries, rays, L, A, B, c)

@@ -96,7 +96,11 @@ truncated series blurs the step) weigh more than twice its filtered sum
 -- fog right behind its blocker: in front of a surface seen from its
 shadowed side, along a ray grazing an occluder -- takes the exact sum
 (:func:`~integrators.fourier.rectified_map.series_unreliable`,
-:mod:`integrators.fourier.exact`); ``stats["exact_fallback"]``.
+:mod:`integrators.fourier.exact`); ``stats["exact_fallback"]``.  A
+query whose unshadowed sum U the separated kernel cannot resolve (U
+below a small share of its terms' magnitude: a float32 cancellation in
+a thick medium, :func:`~integrators.fourier.sums.unresolved_by_separation`,
+the tree's test) has its camera sample ray-marched; ``stats["unresolved"]``.
 
 The end of each view ray (beyond the paper; ``trace_ends``): a sample
 reads the blockers of its slice's plane, up to half a slice spacing

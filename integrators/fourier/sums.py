@@ -11,7 +11,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, uints
-from ..epipolar.last_interval import LastInterval
+from ..epipolar.last_interval import LastInterval, sweep_magnitude, unresolved_samples
 from ..epipolar.light_rays.directional import LightRays
 from ..epipolar.queries import frame_memo
 from .rectified_map import Coverage, query_beta_range, reference_angle
@@ -138,10 +138,30 @@ def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
     depth (0: no band, or no separated kernel)."""
     if A is None or not band_cells:
         return dr.zeros(mi.Color3f, queries.count)
+    return model.band_correction(params, queries, rays, A, B, L, None,
+                                 covered_interval(queries, cover), band_cells)
+
+
+def covered_interval(queries, cover: Coverage) -> LastInterval:
+    """Each query's last light-ray interval as the coverage reads it (the
+    texel ⌊D⌋ and its covered fraction), every texel lit."""
     k0 = cover.texel - queries.row * scalar_u32(cover.d)
     ones = dr.full(mi.Float, 1.0, queries.count)
-    last = LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
-    return model.band_correction(params, queries, rays, A, B, L, None, last, band_cells)
+    return LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+
+
+def unresolved_by_separation(queries, A, B, L, cover: Coverage) -> mi.Bool:
+    """Camera samples (a mask) with a query whose unshadowed sum U the
+    separated kernel does not resolve: U below
+    :data:`~integrators.epipolar.last_interval.UNRESOLVED_RATIO` of the
+    magnitude of its terms
+    (:func:`~integrators.epipolar.last_interval.unresolved_samples`, the
+    tree's test).  In a thick medium a query's U is then a float32
+    cancellation of terms scaled by the row's brightest light rays, wrong
+    whatever the rank (held-out directional seed 2012: 20× the exact U);
+    the series' V̄ multiplies it.  Such samples are ray-marched."""
+    M, U = sweep_magnitude(queries, A, B, L, covered_interval(queries, cover))
+    return unresolved_samples(queries, U, M)
 
 
 def row_shift(a, smap) -> mi.Float:
