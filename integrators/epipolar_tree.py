@@ -272,10 +272,8 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             # template with the samples it re-marches anyway (remarch_disagreeing)
             unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
             keep.extend([value, unshadowed, terms.magnitude, unresolved])
-        unresolved = dr.compress(unresolved)
-        self.render_record.march.append(unresolved)
         self.record(last_interval_traced=last.traced, query_count=queries.count,
-                    unresolved=dr.width(unresolved))
+                    unresolved=self.march_samples(unresolved))
         return value
 
     # -- stages (each timed; an experiment may call or override them) -------------

@@ -331,6 +331,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V, Ls, unreliable = [], [], [], None
         C = channels(L, A, sigma_t)
+        unresolved = None
         with self.stage("evaluate") as keep:
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
                                    self.band_cells(model, plan))
@@ -339,10 +340,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 # samples whose U the separated kernel cannot resolve: marched
                 unresolved = unresolved_by_separation(queries, A, B, L, cover)
                 keep.append(unresolved)
-        if A is not None and plan is None:
-            unresolved = dr.compress(unresolved)
-            self.render_record.march.append(unresolved)
-            self.record(unresolved=dr.width(unresolved))
+        if unresolved is not None:
+            self.record(unresolved=self.march_samples(unresolved))
         kernels = {}        # the channels of one σt share reference rays and kernels
         for c in range(C):
             parts = KernelParts.of(queries, rays, L, A, B, c)

@@ -216,6 +216,14 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                                          self.ring_bisections)))
         return to_samples(queries, parts)
 
+    def march_samples(self, mask) -> int:
+        """Have the camera samples of ``mask`` (a mask over the samples)
+        ray-marched by :meth:`remarch_disagreeing`, with the samples it
+        marches anyway (``RenderRecord.march``); how many there are."""
+        samples = dr.compress(mask)
+        self.render_record.march.append(samples)
+        return dr.width(samples)
+
     def remarch_disagreeing(self, params, cap, queries, values):
         """Stage ``ring``: the (unweighted) query ``values`` with the camera
         samples whose two neighbouring slices disagree by more than
