@@ -39,7 +39,10 @@ filter's second probe setting is their predicted answer, returned when it
 meets the target.  Either way the render reuses the probe's own render of
 the setting returned (:func:`kept_render`) when that is the render asked
 for (the whole frame, one sample per pixel centre, output ``full``, the
-same seed).
+same seed).  When it is, a setting the rule's model chose (the probe did
+not render it) is rendered by the probe and measured before it is
+returned (:func:`settle`): the warning of a missed budget then rests on
+the error of the image the user gets, not on the model's guess.
 
 The chosen settings, the probe's errors and its time go into the render's
 ``RenderResult.stats`` (``auto_settings``, ``auto_probe``,
@@ -200,23 +203,30 @@ class Probe:
         self.predicted, self.predicted_from = None, None
         #: whether the rule expects to miss the budget at every setting
         self.over_budget = False
+        #: whether the render after the probe reuses its full-image renders
+        #: (:func:`reuses_probe`): a rule's model-chosen setting is then
+        #: rendered and measured at no extra cost (:func:`settle`)
+        self.reusable = False
 
     def predict(self, relmse, how: str) -> None:
         """Record the error the rule expects of the setting it returns."""
         ok = relmse is not None and math.isfinite(relmse)
         self.predicted, self.predicted_from = (float(relmse), how) if ok else (None, None)
 
-    def unreachable(self, budget: float, relmse) -> None:
-        """The rule's finest setting is predicted to miss ``budget``: say so
-        (a ``UserWarning`` naming what converges) instead of returning an
+    def unreachable(self, budget: float, relmse, measured: dict | None = None) -> None:
+        """The rule's finest setting is predicted to miss ``budget`` (or its
+        choice, ``measured``, was measured over it): say so (a
+        ``UserWarning`` naming what converges) instead of returning an
         image over budget silently; the render's stats record it."""
         self.over_budget = True
+        what = (f"measured relMSE {relmse:.2e} on the probe's pixels at the setting its rule "
+                f"chose, {measured}" if measured is not None else
+                f"predicted relMSE {relmse:.2e} at the finest setting its rule considers")
         warnings.warn(
             f"quality='auto': {self.method} is not expected to reach error_budget {budget:g} "
-            f"at any setting its rule considers (predicted relMSE {relmse:.2e} at its "
-            "finest): the render will be over budget.  raymarch with visibility='exact' "
+            f"({what}): the render will be over budget.  raymarch with visibility='exact' "
             "converges to the reference with enough steps; or raise the budget.",
-            UserWarning, stacklevel=2)
+            UserWarning, stacklevel=3)
 
     def render(self, integrator, partial=False):
         """RenderResult of ``integrator`` at one sample per pixel centre (a
@@ -271,6 +281,25 @@ class Probe:
 # Rules: probe -> settings
 # --------------------------------------------------------------------------
 
+def settle(probe: Probe, settings: dict, budget: float, predicted) -> None:
+    """A rule returns ``settings`` its model chose (the probe did not render
+    them) with the model's ``predicted`` relMSE: where the render after the
+    probe reuses the probe's full-image renders (``probe.reusable``) the
+    probe renders them and measures their error -- the render the user
+    gets, at no extra cost -- and the budget is flagged only where that
+    measurement misses it; otherwise the prediction stands, flagged where
+    it misses the target."""
+    if getattr(probe, "reusable", False):
+        e = probe.error(settings)
+        probe.predict(e, "measured")
+        if e > budget:
+            probe.unreachable(budget, e, measured=settings)
+        return
+    probe.predict(predicted, "model")
+    if predicted is not None and predicted > target_of(budget):
+        probe.unreachable(budget, predicted)
+
+
 def clamped_exponent(e_a: float, e_b: float, x_a: float, x_b: float, fit: dict) -> float:
     """k of relMSE = C x^k through the probe's errors ``e_a`` at ``x_a`` and
     ``e_b`` at ``x_b``, clamped to ``fit["k_range"]``; ``fit["k"]`` where
@@ -318,8 +347,11 @@ def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0
 
 
 def probe_and_choose(scene, method: str, budget: float, base: dict | None = None, sensor=0,
-                     seed=0):
-    """:func:`choose`, and the :class:`Probe` (with its kept renders)."""
+                     seed=0, reusable: bool = False):
+    """:func:`choose`, and the :class:`Probe` (with its kept renders);
+    ``reusable``: the render after it reuses the probe's full-image renders
+    (:func:`reuses_probe`), so a model-chosen setting is measured
+    (:func:`settle`)."""
     if method not in RULES:
         raise ValueError(f"no quality='auto' rule for {method!r}: use one of {sorted(RULES)}.")
     if not (isinstance(budget, (int, float)) and budget > 0):
@@ -327,6 +359,7 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
     t0 = time.perf_counter()
     probe = Probe(scene, sensor, method, base or {}, seed=seed,
                   steps=FINE_REFERENCE_STEPS if budget < TIGHT_BUDGET else None)
+    probe.reusable = reusable
     settings = RULES[method].choose(probe, float(budget), FIT[method])
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
                       "auto_probe_pixels": int(len(probe.pixels)),
@@ -335,14 +368,19 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
                       "auto_over_budget": probe.over_budget}, probe
 
 
+def reuses_probe(inner, scene, sensor, spp, partial_args: dict) -> bool:
+    """Whether the render ``inner`` is asked for (the whole frame, one
+    sample per pixel centre, output ``full``) is one the probe renders."""
+    if any(v is not None for v in partial_args.values()):
+        return False
+    n = inner.sample_count(scene, sensor, spp)
+    return n == 1 and not inner.jitters(n) and inner.output == "full"
+
+
 def kept_render(probe: Probe, inner, scene, sensor, spp, settings: dict, partial_args: dict):
     """The probe's render of ``settings`` if it is the render ``inner``
-    is asked for (the whole frame, one sample per pixel centre, output
-    ``full``, the probe's seed), else None."""
-    if any(v is not None for v in partial_args.values()):
-        return None
-    n = inner.sample_count(scene, sensor, spp)
-    if n != 1 or inner.jitters(n) or inner.output != "full":
+    is asked for (:func:`reuses_probe`, the probe's seed), else None."""
+    if not reuses_probe(inner, scene, sensor, spp, partial_args):
         return None
     return probe.kept.get(settings_key(settings))
 
@@ -358,8 +396,10 @@ def render_auto(integrator, scene, sensor=0, seed=0, spp=0, **kw):
     import mitsuba as mi
 
     base = dict(integrator.explicit_properties)
+    reusable = reuses_probe(integrator, scene, sensor, spp, kw)
     settings, stats, probe = probe_and_choose(scene, integrator.method_name,
-                                              integrator.error_budget, base, sensor, int(seed))
+                                              integrator.error_budget, base, sensor, int(seed),
+                                              reusable)
     inner = mi.load_dict({"type": integrator.method_name, **base, **settings})
     result = kept_render(probe, inner, scene, sensor, spp, settings, kw)
     reused = result is not None

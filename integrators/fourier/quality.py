@@ -19,7 +19,7 @@ the plugin registers :data:`FILTER_RULE`.
 """
 from __future__ import annotations
 
-from ..core.quality_auto import Probe, QualityRule, target_of
+from ..core.quality_auto import Probe, QualityRule, settle, target_of
 from .basis import DEFAULT_M
 
 
@@ -110,10 +110,8 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
         return {"coefficients": m2}
     settings = filter_settings(e1, e2, budget, fit, m2, safe=True)   # a guess: not below 32
     F, C = filter_model(e1, e2, fit, m2)
-    predicted = filter_error(F, C, settings["coefficients"], "weights" in settings, fit)
-    probe.predict(predicted, "model")
-    if predicted > target_of(budget):
-        probe.unreachable(budget, predicted)
+    settle(probe, settings, budget,
+           filter_error(F, C, settings["coefficients"], "weights" in settings, fit))
     return settings
 
 

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import math
 
-from ..core.quality_auto import Probe, QualityRule, clamped_exponent, probe_errors, target_of
+from ..core.quality_auto import (Probe, QualityRule, clamped_exponent, probe_errors, settle,
+                                 target_of)
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -54,10 +55,8 @@ def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
     if s == MINMAX_PROBE[1]:
         probe.predict(e2, "measured")
     else:
-        predicted = minmax_error(e1, e2, s, fit) if e2 > 0 else e2
-        probe.predict(predicted, "model")
-        if predicted is not None and predicted > target_of(budget):
-            probe.unreachable(budget, predicted)
+        settle(probe, {"initial_step": s}, budget,
+               minmax_error(e1, e2, s, fit) if e2 > 0 else e2)
     return {"initial_step": s}
 
 

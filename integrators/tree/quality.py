@@ -2,10 +2,12 @@
 light rays): relMSE = A·(s/s₀)^a + B·(ρ/ρ₀)^-b in the slice spacing s [px]
 and the light-ray density ρ (light rays per slice over the image diagonal in
 pixels; the light-ray term is the tree's error floor at fixed light rays);
-the probe renders (s₀, ρ₀), then -- unless that meets the target -- the
-setting the model predicts from that error alone (A = B = its error, a
-conservative split), which is the answer when it meets the target and
-otherwise separates A and B; time ~ α + β/s + γ·ρ/s (fitted).
+the probe renders (s₀, ρ₀), then -- unless that meets the target -- a
+second setting: the one the model predicts from that error alone (A = B =
+its error, a conservative split) where that is cheap, else (s₀, 4ρ₀), which
+separates A and B (:func:`second_probe`); the second is the answer when it
+meets the target, otherwise the model through both chooses; time ~ α + β/s
++ γ·ρ/s (fitted).
 
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
 the plugin registers :data:`TREE_RULE`.
@@ -14,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from ..core.quality_auto import Probe, QualityRule, target_of
+from ..core.quality_auto import Probe, QualityRule, settle, target_of
 from ..epipolar.light_rays.directional import MIN_AUTO_LIGHT_RAYS
 
 
@@ -29,6 +31,9 @@ TREE_DENSITIES = (0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0)
 DEFAULT_SPACING, DEFAULT_DENSITY = 1.0, 1.0
 #: the tree's probe: slice spacing s0 and densities rho0, 4 rho0
 TREE_PROBE = (2.0, 0.5, 2.0)
+#: the most a predicted second probe may cost, in fixed second probes
+#: (:func:`second_probe`): the fixed one and the render after it
+PREDICTION_COST = 2.0
 
 
 def tree_model(e1: float, e2: float, fit=None, second=None):
@@ -69,7 +74,6 @@ def tree_choice_of(A: float, B: float, budget: float, fit=None, safe: bool = Fal
     as in each term the model could not resolve (A or B 0)."""
     fit = fit or FITTED
     s0, r0, _ = TREE_PROBE
-    al, be, ga = fit["time"]
     max_s = finest[0] if finest is not None and A == 0 else math.inf
     min_r = finest[1] if finest is not None and B == 0 else 0.0
     best, most = None, None
@@ -80,7 +84,7 @@ def tree_choice_of(A: float, B: float, budget: float, fit=None, safe: bool = Fal
             if s > max_s or r < min_r:
                 continue
             err = tree_error(A, B, s, r, fit)
-            t = al + be / s + ga * r / s
+            t = tree_time(s, r, fit)
             if err <= target_of(budget) and (best is None or t < best[0]):
                 best = (t, s, r)
             if most is None or (err, t) < most[0]:
@@ -104,18 +108,41 @@ def tree_settings(s: float, r: float, diagonal: float) -> dict:
     return {"slice_spacing": s, "light_rays": light_rays_of(r, diagonal)}
 
 
+def tree_time(s: float, r: float, fit=None) -> float:
+    """The time model alpha + beta/s + gamma rho/s of spacing ``s`` and
+    light-ray density ``r`` (relative units)."""
+    al, be, ga = (fit or FITTED)["time"]
+    return al + be / s + ga * r / s
+
+
+def second_probe(e1: float, budget: float, fit=None) -> tuple[float, float]:
+    """(s, rho) of the tree's second probe after the first missed the target
+    with ``e1``: the setting predicted from ``e1`` alone (both terms given
+    all of it), kept when it meets the target, where the time model says it
+    costs at most :data:`PREDICTION_COST` fixed second probes (s0, 4 rho0)
+    -- what the fixed one and the render after it would cost; otherwise
+    that fixed one, which separates the two terms with a coarse render (a
+    prediction from one error far over the target asks for the finest
+    setting of both knobs: several times the cost of the setting the two
+    terms, once separated, call for)."""
+    s0, _, r1 = TREE_PROBE
+    s2, r2 = tree_choice_of(e1, e1, budget, fit)
+    if tree_time(s2, r2, fit) <= PREDICTION_COST * tree_time(s0, r1, fit):
+        return s2, r2
+    return s0, r1
+
+
 def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     """Slice spacing and light rays of the tree (module doc): the first probe
-    setting if it meets the target; else the setting predicted from its
-    error alone (both terms of the model given all of it), rendered as the
-    second probe and returned if it meets the target; else the choice of
-    the model through both."""
+    setting if it meets the target; else the second probe
+    (:func:`second_probe`), returned if it meets the target; else the
+    choice of the model through both."""
     first = tree_probe(probe.diagonal)[0]
     e1 = probe.error(first)
     if e1 <= target_of(budget):
         probe.predict(e1, "measured")
         return first
-    s2, r2 = tree_choice_of(e1, e1, budget, fit)
+    s2, r2 = second_probe(e1, budget, fit)
     second = tree_settings(s2, r2, probe.diagonal)
     if second == first:                  # no prediction beyond it: the fixed second probe
         second = tree_probe(probe.diagonal)[1]
@@ -128,12 +155,9 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     # a guess: never coarser than the defaults, nor than the second probe in
     # a term the two probes could not separate (the fit set it to 0)
     s, r = tree_choice_of(A, B, budget, fit, safe=True, finest=(s2, r2))
-    predicted = tree_error(A, B, s, r, fit)
-    probe.predict(predicted, "model")
-    if predicted > target_of(budget):
-        probe.unreachable(budget, predicted)
     settings = tree_settings(s, r, probe.diagonal)
     settings["light_rays"] = max(settings["light_rays"], MIN_AUTO_LIGHT_RAYS)
+    settle(probe, settings, budget, tree_error(A, B, s, r, fit))
     return settings
 
 
