@@ -291,6 +291,7 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             beta_map(queries)       # the blockers' map of the queries' β, with D
             band = model.band_for(params, queries, rays, self.ASYMPTOTE_BAND)
             keep.extend([D.array, L.array])
+        self.record(dropped_marched=self.march_dropped(params, queries, rays))
         return LightSide(rays, L, colour, lit, D, band)
 
     def blocker_stage(self, params, cap, queries, side: "LightSide"):

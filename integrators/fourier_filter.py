@@ -306,6 +306,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         frame_rays = rays
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
+        self.record(dropped_marched=self.march_dropped(params, queries, rays,
+                                                       (whole, frame_rays)))
         A = B = None        # the direct sum needs no separated kernel (its own gives U)
         with self.stage("svd") as keep:
             if self.exact_visibility(params):

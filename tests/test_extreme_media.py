@@ -43,3 +43,64 @@ def test_grazing_light_behind_the_eye_stays_bounded(method, light, sigma_t):
     # light's image is 3-8 % bright (slices and light rays too coarse for
     # it; 2000 slices: 3 %)
     assert abs(img.mean() / ref.mean() - 1.0) < 0.1
+
+
+def test_a_thick_fog_seen_toward_the_light_keeps_the_light_rays_it_drops():
+    """Held-out thick-fog shafts (error_budget seed 2016, σt·h ≈ 15 from the
+    eye to the box toward the sun), no occluder at all: the light rays that
+    leave the box more than c mean free paths behind the eye were dropped
+    as worth e^{-c} of the unattenuated scattering, but every point of a
+    view ray toward the light adds about e^{-σt h_eye}, far less: the
+    filter's default image was up to 26 % dark (relMSE 3.3e-3).  The
+    samples whose queries cover a dropped light ray are ray-marched."""
+    import dataclasses
+
+    from episcatter.metrics import scale_free_relmse
+    from experiments.error_budget import scene_spec
+
+    spec = scene_spec(2016, "mixed").at_resolution(48, 36)
+    scene = dataclasses.replace(spec, occluders=[]).load()
+    ref = np.asarray(mi.load_dict({"type": "raymarch", "visibility": "exact",
+                                   "steps": 1024}).render(scene))
+    res = mi.load_dict({"type": "fourier_filter"}).render_layers(scene, spp=1)
+    img = np.asarray(res["full"])
+    assert res.stats["dropped_marched"] > 0
+    # before: 26 % dark in a wedge toward the light, relMSE 3.3e-3 (the
+    # 4 % left is one edge pixel of a coarse slice, the tree's too)
+    assert np.min(img.mean(-1) / ref.mean(-1)) > 0.95
+    assert scale_free_relmse(img, ref) < 5e-5
+
+
+def test_the_samples_over_dropped_light_rays_are_those_a_plain_loop_finds():
+    """samples_over_dropped against a loop over every query: a sample is
+    marked iff a query of it lies, in its row, beyond a light ray with
+    σt·h < −c (texels below its depth D)."""
+    import dataclasses
+
+    from experiments.error_budget import scene_spec
+    from integrators.epipolar.light_factor import lowest_light_side, samples_over_dropped
+    from integrators.epipolar.light_rays.directional import LIGHT_SIDE_RANGE
+
+    seen = {}
+
+    class Spy(type(mi.load_dict({"type": "epipolar_tree"}))):
+        def march_dropped(self, params, queries, rays, frame=None):
+            seen.update(params=params, queries=queries, rays=rays)
+            return super().march_dropped(params, queries, rays, frame)
+
+    spec = scene_spec(2016, "mixed").at_resolution(32, 24)
+    scene = dataclasses.replace(spec, occluders=[]).load()
+    Spy(mi.Properties("epipolar_tree")).render_layers(scene, spp=1)
+    params, queries, rays = seen["params"], seen["queries"], seen["rays"]
+    lowest = lowest_light_side(queries, rays, rays.h)
+    got = np.asarray(samples_over_dropped(params, queries, rays, lowest))
+    st = float(np.max(np.asarray(params.medium.sigma_t)))
+    h = np.asarray(rays.h).reshape(queries.n, rays.d)
+    dropped = np.isfinite(h) & (st * h < -LIGHT_SIDE_RANGE)
+    D = np.clip(np.nan_to_num(np.asarray(rays.query_depth(queries)), nan=0.0), 0, rays.d)
+    want = np.zeros(queries.n_samples, bool)
+    for row, depth, sample in zip(np.asarray(queries.row), D, np.asarray(queries.sample)):
+        if depth > 0 and dropped[row, :min(int(depth), rays.d - 1) + 1].any():
+            want[sample] = True
+    assert want.any() and not want.all()
+    assert np.array_equal(got, want)
