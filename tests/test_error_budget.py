@@ -525,3 +525,29 @@ def test_the_marchers_probe_sees_the_edges_of_a_spot_lit_shaft():
                                       .render_layers(scene, spp=1)["full"]),
                              np.array(ref.render_layers(scene, spp=1)["full"]))
     assert 0.5 * true <= estimate <= 2.0 * true
+
+
+@pytest.mark.parametrize("seed", [2005, 2045])
+def test_minmax_meets_a_loose_budget_in_a_window_lit_room(seed):
+    """The issue's second user scene, as the held-out generator writes it:
+    a room lit by the sun through a barred window (experiments.user_scenes
+    ``window_room``); ``minmax_epipolar`` with error_budget 1e-3 once
+    ended 7x over it.  Its render meets the budget within 2x (against the
+    exact marcher) or says it cannot."""
+    import warnings
+
+    from episcatter.metrics import scale_free_relmse
+    from experiments.error_budget import scene_spec
+
+    spec = scene_spec(seed, "mixed")
+    assert "window_room" in spec.name
+    scene = spec.at_resolution(64, 48).load()
+    ref = np.asarray(mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 1024,
+                                   "boundary_bisections": 8}).render(scene, spp=1))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = mi.load_dict({"type": "minmax_epipolar", "quality": "auto",
+                               "error_budget": 1e-3}).render_layers(scene, spp=1)
+    e = scale_free_relmse(np.asarray(result["full"]), ref)
+    said = any("not expected to reach" in str(w.message) for w in caught)
+    assert e <= 2e-3 or said, (e, result.stats["auto_settings"])
