@@ -32,7 +32,14 @@ def lowest_light_side(queries, rays, path: mi.Float) -> float | None:
     return frame_memo(queries, (LOWEST_LIGHT_SIDE, rays), make)
 
 
-def light_side_gains(sigma_t, lowest: float | None) -> list[float]:
+#: a point or spot light's light-side range c (its light rays with
+#: σt·(L − r_in) < −c are left out of the sums; the directional light's is
+#: ``LIGHT_SIDE_RANGE``, whose samples are marched)
+LOCAL_LIGHT_SIDE_RANGE = 7.0
+
+
+def light_side_gains(sigma_t, lowest: float | None,
+                     c: float = LIGHT_SIDE_RANGE) -> list[float]:
     """Per channel of extinction ``sigma_t``: e^{-σt·min(lowest, 0)}, at
     most e^{c}, ``lowest`` the smallest finite light-side path length
     (:func:`lowest_light_side`; None: none, as 0): how much the
@@ -40,7 +47,7 @@ def light_side_gains(sigma_t, lowest: float | None) -> list[float]:
     the tree's absolute errors.  The automatic SVD rank divides its
     tolerance by it."""
     lowest = min(0.0 if lowest is None else lowest, 0.0)
-    return [math.exp(min(LIGHT_SIDE_RANGE, -float(st) * lowest))
+    return [math.exp(min(c, -float(st) * lowest))
             for st in np.atleast_1d(np.asarray(sigma_t, np.float64))]
 
 
@@ -53,12 +60,12 @@ def gray(sigma_t) -> bool:
     return bool(np.all(s == s[0]))
 
 
-def light_side_extinction(sigma_t: float, path, ref=None):
+def light_side_extinction(sigma_t: float, path, ref=None, c: float = LIGHT_SIDE_RANGE):
     """e^{-σt (path − ref)} per light ray (``ref`` None: 0) -- the light
     side of the per-light-ray factor of both light kinds (directional:
     path = h, ref = the row's h_ref; point/spot: path = L − r_in) -- and 0
     where the path is not finite (the light ray misses the box: +inf, NaN)
-    or σt·path < −c (c = ``LIGHT_SIDE_RANGE``).  A light ray whose path is
+    or σt·path < −c (``LIGHT_SIDE_RANGE`` unless given).  A light ray whose path is
     negative (it leaves the box toward the light *behind* the eye) has a
     factor above 1, but each of its points is at least |path| from the eye,
     so it contributes at most e^{-σt |path|} of the unattenuated single
@@ -66,7 +73,7 @@ def light_side_extinction(sigma_t: float, path, ref=None):
     (:func:`~integrators.epipolar.light_rays.directional.row_reference`)."""
     rel = path if ref is None else path - ref
     st = scalar(sigma_t)
-    return dr.select(dr.isfinite(rel) & (-st * path <= LIGHT_SIDE_RANGE), dr.exp(-st * rel), 0.0)
+    return dr.select(dr.isfinite(rel) & (-st * path <= c), dr.exp(-st * rel), 0.0)
 
 
 def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:

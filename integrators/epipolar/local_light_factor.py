@@ -10,7 +10,8 @@ import numpy as np
 
 from ..core.light_transport import point, sample_light, scalar, vector
 from .blockers import sub_ray_gamma
-from .light_factor import gray, light_ray_channels, light_side_extinction
+from .light_factor import (LOCAL_LIGHT_SIDE_RANGE, gray, light_ray_channels,
+                           light_side_extinction)
 from .light_rays.local import LocalLightRays, light_ray_direction
 from .queries import EpipolarQueries
 
@@ -75,9 +76,11 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))
         scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
-        values = [I_mean[c] * scalar(scale) * light_side_extinction(sigma_t[0], depth)]
+        values = [I_mean[c] * scalar(scale) * light_side_extinction(sigma_t[0], depth,
+                                                                    c=LOCAL_LIGHT_SIDE_RANGE)]
     else:
-        values = [I_mean[ch] * light_side_extinction(sigma_t[ch], depth) for ch in range(3)]
+        values = [I_mean[ch] * light_side_extinction(sigma_t[ch], depth, c=LOCAL_LIGHT_SIDE_RANGE)
+                  for ch in range(3)]
         colour = mi.Color3f(1.0)
     L = light_ray_channels(values, queries.n, rays.d)
     dr.eval(L.array, lit)

@@ -28,6 +28,7 @@ import numpy as np
 from ...core.host_reads import host_reductions, row_extremes
 from ...core.light_transport import phase_eval, scalar
 from ...core.opaque import Divisor, floats, opaque_scalar
+from ..light_factor import LOCAL_LIGHT_SIDE_RANGE
 from ..light_rays.local import LocalLightRays, light_ray_range
 from ..queries import EpipolarQueries, frame_memo
 from .separation import SeparatedChannel
@@ -462,6 +463,9 @@ class LocalSeparation:
     asymptote: a step along the diagonal β + γ = π that no rank-24 kernel
     resolves (random stress seeds 79, 233, 266: separation error 0.13 at rank
     24, per-query sums off by up to 5 %)."""
+    #: the light-side range c of its light rays
+    light_side_range = LOCAL_LIGHT_SIDE_RANGE
+
     band_cells: int = 0
 
     def band_tan(self, rays: LocalLightRays) -> float:

@@ -24,6 +24,7 @@ import numpy as np
 
 from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains, lowest_light_side
+from ..light_rays.directional import LIGHT_SIDE_RANGE
 from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms, term_table
 
@@ -130,7 +131,8 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     channels = [0] if gray(sigma_t) else [0, 1, 2]
     whole, whole_rays = queries.whole_frame, rays if frame_rays is None else frame_rays
     gains = light_side_gains(sigma_t, lowest_light_side(
-        whole, whole_rays, separation.light_side_path(whole, whole_rays)))
+        whole, whole_rays, separation.light_side_path(whole, whole_rays)),
+        separation.light_side_range)
     tols = [tol / gains[c] for c in channels]
     kernels = [separation.channel(params, whole, whole_rays, float(sigma_t[c]), rank, t)
                for c, t in zip(channels, tols)]
@@ -277,6 +279,9 @@ class DirectionalSeparation:
     ``gamma_max`` and ``h``); K(γ_g, β)·φ(σt tan(β/2) Δγ) is the exact mean
     of K over the interval (φ: :func:`~integrators.epipolar.query_terms.cell_average`,
     a per-query factor)."""
+    #: the light-side range c of its light rays
+    #: (:data:`~integrators.epipolar.light_rays.directional.LIGHT_SIDE_RANGE`)
+    light_side_range = LIGHT_SIDE_RANGE
 
     def light_side_path(self, queries, rays):
         """h: the per-query factor e^{-σt h_ref} multiplies the kernel's
