@@ -275,7 +275,9 @@ UNRESOLVED_RATIO = 1e-2
 def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -> mi.Bool:
     """Camera samples with a query whose sum the tree cannot resolve: its
     unshadowed separated sum U below ``UNRESOLVED_RATIO`` of its magnitude
-    M (:func:`sweep_magnitude`) in any channel.  The tree's result is then a
+    M (:func:`sweep_magnitude`) in any channel, negative U included (a
+    thick fog seen toward the sun, held-out seed 2016 with a box 1.5x as
+    large: U = -2.8 % of M, |U| above the ratio, and the pixel black).  The tree's result is then a
     difference of terms ≥ 100× as large: their float32 rounding and the
     separated kernel's absolute error (both ∝ M) are ≥ 1e-5…1e-3 of the
     query's value, and all of it where L grows along the slice by
@@ -290,6 +292,7 @@ def unresolved_samples(queries: EpipolarQueries, U: mi.Color3f, M: mi.Color3f) -
         return mask
     bad = mi.Bool(False)
     for c in range(3):
-        bad |= (M[c] > 0.0) & (dr.abs(U[c]) < UNRESOLVED_RATIO * M[c])
+        # a negative U (a sum of positive terms) is unresolved whatever its size
+        bad |= (M[c] > 0.0) & (U[c] < UNRESOLVED_RATIO * M[c])
     dr.scatter(mask, True, queries.sample, active=bad)
     return mask
