@@ -15,6 +15,7 @@ from .core.properties import read_bool, read_choice, read_number
 from .core.quality_auto import register_rule
 from .epipolar.frame import choose_slices, epipolar_frame_of
 from .epipolar.light_models import light_model
+from .epipolar.light_rays.directional import LIGHT_SIDE_RANGE
 from .epipolar.query_terms import assemble_queries
 from .fourier.basis import check_M
 from .fourier.exact import exact_sums
@@ -45,6 +46,14 @@ VISIBILITIES = ("exact_directional", "exact", "filter")
 FILTER_PROPERTIES = ("coefficients", "weights", "reference", "reference_rays", "regions",
                      "clamp", "fit_depth", "exact_bounds", "depth_range")
 RECTIFICATIONS = ("auto", "epipolar", "projective")
+#: the light-side range c of the direct sum (a directional light's light
+#: rays leaving the box more than c mean free paths behind the eye are left
+#: out and their samples marched): the separated kernels' 4
+#: (:data:`~integrators.epipolar.light_rays.directional.LIGHT_SIDE_RANGE`)
+#: is their float32 resolution, the direct sum's terms L·K stay in range to
+#: e^{±20} (held-out seed 2016 at 320x240: c = 4 marched 34,289 of its
+#: 76,800 samples, 0.83 s a frame against 0.11 s)
+EXACT_LIGHT_SIDE_RANGE = 20.0
 BLOCKERS = ("traced", "resampled")
 #: default ``projective_min_angle`` [deg]: ``auto`` takes the projective map
 #: when every view ray of the image is at least this far from the light
@@ -299,7 +308,13 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 rays = self.projective_rays(params, whole, plan, d)
             else:   # local lights: Baran §9, γ = angle at the light (Klehm §3.2)
                 rays = model.light_rays(params, whole, d)
-            L, colour, lit = model.light_factor(params, whole, rays)
+            # the direct sum takes more of a directional light's light rays
+            # behind the eye than a separated kernel resolves
+            c = (EXACT_LIGHT_SIDE_RANGE if self.exact_visibility(params) and not model.local
+                 else LIGHT_SIDE_RANGE)
+            L, colour, lit = model.light_factor(params, whole, rays,
+                                                **({} if model.local else
+                                                   {"light_side_range": c}))
         length = model.light_length(params, whole, cap)
         if plan is None:
             self.record(frame_choices=frame_choices(whole, rays) + (("length", length),))
@@ -307,7 +322,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
         self.record(dropped_marched=self.march_dropped(params, queries, rays,
-                                                       (whole, frame_rays)))
+                                                       (whole, frame_rays), c))
         A = B = None        # the direct sum needs no separated kernel (its own gives U)
         with self.stage("svd") as keep:
             if self.exact_visibility(params):

@@ -53,7 +53,8 @@ def test_a_thick_fog_seen_toward_the_light_keeps_the_light_rays_it_drops(method)
     as worth e^{-c} of the unattenuated scattering, but every point of a
     view ray toward the light adds about e^{-σt h_eye}, far less: the
     filter's default image was up to 26 % dark (relMSE 3.3e-3).  The
-    samples whose queries cover a dropped light ray are ray-marched.  (The
+    samples whose queries cover a dropped light ray are ray-marched, and
+    the filter's direct sum drops none of these.  (The
     tree, at 128x96, was also up to 29 % dark on the light rays it kept
     there, amplified e^7 beyond its separated kernel's resolution: the
     range is now c = 4.)"""
@@ -68,7 +69,9 @@ def test_a_thick_fog_seen_toward_the_light_keeps_the_light_rays_it_drops(method)
                                    "steps": 1024}).render(scene))
     res = mi.load_dict({"type": method}).render_layers(scene, spp=1)
     img = np.asarray(res["full"])
-    assert res.stats["dropped_marched"] > 0
+    # the tree marches them; the filter's direct sum keeps them (to 20 mean
+    # free paths behind the eye, fourier_filter.EXACT_LIGHT_SIDE_RANGE)
+    assert (res.stats["dropped_marched"] > 0) == (method == "epipolar_tree")
     # before: 26 % dark in a wedge toward the light, relMSE 3.3e-3 (the
     # 4 % left is one edge pixel of a coarse slice, the tree's too)
     assert np.min(img.mean(-1) / ref.mean(-1)) > 0.95

@@ -91,27 +91,31 @@ def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:
     return mi.TensorXf(out, shape=(n, d, C))
 
 
-def light_side_factor(params, queries: EpipolarQueries, rays: LightRays) -> mi.TensorXf:
+def light_side_factor(params, queries: EpipolarQueries, rays: LightRays,
+                      c: float | None = None) -> mi.TensorXf:
     """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} at every light ray's centre:
     (n, d) if σt is grey, else (n, d, 3).  Relative to the row's h_ref so
     that thick media stay inside float32's range; the factor e^{-σt h_ref}
     is applied per query (:func:`~integrators.epipolar.query_terms.directional_query_terms`). 
     Light rays
-    with σt·h < −c are 0 (:func:`light_side_extinction`); so
-    e^{-σt h_ref}·L ≤ e^{c} everywhere."""
+    with σt·h < −c are 0 (:func:`light_side_extinction`; ``c``:
+    ``LIGHT_SIDE_RANGE`` unless given -- a sum that needs no separated
+    kernel may keep more of them); so e^{-σt h_ref}·L ≤ e^{c} everywhere."""
     s, _, _ = rays.lanes()
     h_ref = dr.gather(mi.Float, rays.h_ref, s)
     sigma_t = params.medium.sigma_t
     channels = [0] if gray(sigma_t) else [0, 1, 2]
-    return light_ray_channels([light_side_extinction(sigma_t[c], rays.h, h_ref)
-                               for c in channels], queries.n, rays.d)
+    rng = LIGHT_SIDE_RANGE if c is None else c
+    return light_ray_channels([light_side_extinction(sigma_t[ch], rays.h, h_ref, rng)
+                               for ch in channels], queries.n, rays.d)
 
 
-def samples_over_dropped(params, queries: EpipolarQueries, rays,
-                         lowest: float | None) -> mi.Bool | None:
+def samples_over_dropped(params, queries: EpipolarQueries, rays, lowest: float | None,
+                         c: float = LIGHT_SIDE_RANGE) -> mi.Bool | None:
     """Camera samples (a mask) whose query covers a light ray that
-    :func:`light_side_extinction` dropped (finite h with σt·h < −c, c =
-    ``LIGHT_SIDE_RANGE``, σt the largest channel's), to be ray-marched;
+    :func:`light_side_extinction` dropped (finite h with σt·h < −c, ``c``
+    the range the light-side factor was made with, σt the largest
+    channel's), to be ray-marched;
     None where the frame has none (``lowest``: its smallest finite h, from
     :func:`lowest_light_side`).
 
@@ -126,10 +130,10 @@ def samples_over_dropped(params, queries: EpipolarQueries, rays,
     if not queries.count or lowest is None:
         return None
     st = float(np.max(np.asarray(params.medium.sigma_t, np.float64)))
-    if not st * lowest < -LIGHT_SIDE_RANGE:
+    if not st * lowest < -c:
         return None
     h = rays.h
-    dropped = dr.select(dr.isfinite(h) & (scalar(st) * h < -LIGHT_SIDE_RANGE), 1.0, 0.0)
+    dropped = dr.select(dr.isfinite(h) & (scalar(st) * h < -c), 1.0, 0.0)
     before = dr.block_prefix_sum(mi.Float(dropped), rays.d, exclusive=False)   # per row
     d_o = scalar_u32(rays.d)
     D = rays.query_depth(queries)

@@ -87,9 +87,11 @@ class LightModel:
         capture when the rays must reach its farthest sample."""
         raise NotImplementedError
 
-    def light_factor(self, params, queries, rays, k: int = 1):
+    def light_factor(self, params, queries, rays, k: int = 1, light_side_range=None):
         """(L, colour, lit): the per-light-ray factor, the light's colour when
-        L is grey (else None) and the light rays that carry light (None: all)."""
+        L is grey (else None) and the light rays that carry light (None: all);
+        ``light_side_range``: a directional light's c (its light rays beyond
+        it are left out; None: ``LIGHT_SIDE_RANGE``)."""
         raise NotImplementedError
 
     def trace_blockers(self, params, queries, rays, k: int = 1, lit=None):
@@ -182,8 +184,8 @@ class Directional(LightModel):
     def light_rays(self, params, queries, d, cap=None):
         return light_ray_grid(params, queries, d)
 
-    def light_factor(self, params, queries, rays, k=1):
-        return light_side_factor(params, queries, rays), None, None
+    def light_factor(self, params, queries, rays, k=1, light_side_range=None):
+        return light_side_factor(params, queries, rays, light_side_range), None, None
 
     def trace_blockers(self, params, queries, rays, k=1, lit=None):
         return trace_blocker_angles(params, queries, rays, k)

@@ -28,6 +28,7 @@ from ..core.properties import read_bool, read_number
 from ..epipolar.frame import choose_slices, epipolar_frame_of
 from ..epipolar.kernel.svd import SAMPLES
 from ..epipolar.light_factor import lowest_light_side, samples_over_dropped
+from ..epipolar.light_rays.directional import LIGHT_SIDE_RANGE
 from ..epipolar.light_rays.local import cone_samples, resolve_lit_cone
 from ..epipolar.queries import assign_queries
 from ..epipolar.ring import (RING_BISECTIONS, disagreeing_samples, march_ring, peak_marched,
@@ -217,17 +218,20 @@ class EpipolarIntegrator(EpiscatterIntegrator):
                                          self.ring_bisections)))
         return to_samples(queries, parts)
 
-    def march_dropped(self, params, queries, rays, frame=None) -> int:
+    def march_dropped(self, params, queries, rays, frame=None,
+                      light_side_range: float = LIGHT_SIDE_RANGE) -> int:
         """Have the camera samples whose query covers a light ray the
         light-side factor dropped ray-marched
         (:func:`~integrators.epipolar.light_factor.samples_over_dropped`:
         a thick medium seen toward a directional light); ``frame``: the
         whole frame's (queries, rays) where ``queries``, ``rays`` are a
-        partial render's rows; how many samples (0: none, no kernel)."""
+        partial render's rows; ``light_side_range``: the c the light-side
+        factor was made with; how many samples (0: none, no kernel)."""
         if getattr(rays, "h", None) is None:        # light rays of a point/spot light
             return 0
         fq, fr = frame if frame is not None else (queries, rays)
-        mask = samples_over_dropped(params, queries, rays, lowest_light_side(fq, fr, fr.h))
+        mask = samples_over_dropped(params, queries, rays, lowest_light_side(fq, fr, fr.h),
+                                    light_side_range)
         return 0 if mask is None else self.march_samples(mask)
 
     def march_samples(self, mask) -> int:
