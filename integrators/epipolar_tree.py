@@ -241,6 +241,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
         self.record(frame_choices=frame_choices(whole, frame_side.rays) + (("band", band),),
                     asymptote_band=band)
         side = frame_side.of_rows(queries)
+        # these rows' samples that meet a light ray the light-side factor left out
+        self.record(dropped_marched=self.march_dropped(params, queries, side.rays,
+                                                       (whole, frame_side.rays)))
         with self.stage("svd") as keep:
             # separated on the whole frame, evaluated at these rows
             A, B = model.separated_kernel(params, queries, side.rays, self.svd_rank,
@@ -291,7 +294,6 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             beta_map(queries)       # the blockers' map of the queries' β, with D
             band = model.band_for(params, queries, rays, self.ASYMPTOTE_BAND)
             keep.extend([D.array, L.array])
-        self.record(dropped_marched=self.march_dropped(params, queries, rays))
         return LightSide(rays, L, colour, lit, D, band)
 
     def blocker_stage(self, params, cap, queries, side: "LightSide"):

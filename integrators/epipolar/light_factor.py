@@ -92,7 +92,7 @@ def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:
 
 
 def light_side_factor(params, queries: EpipolarQueries, rays: LightRays,
-                      c: float | None = None) -> mi.TensorXf:
+                      c: float = LIGHT_SIDE_RANGE) -> mi.TensorXf:
     """L(γ) = e^{-σt (h(α, γ) − h_ref(α))} at every light ray's centre:
     (n, d) if σt is grey, else (n, d, 3).  Relative to the row's h_ref so
     that thick media stay inside float32's range; the factor e^{-σt h_ref}
@@ -105,8 +105,7 @@ def light_side_factor(params, queries: EpipolarQueries, rays: LightRays,
     h_ref = dr.gather(mi.Float, rays.h_ref, s)
     sigma_t = params.medium.sigma_t
     channels = [0] if gray(sigma_t) else [0, 1, 2]
-    rng = LIGHT_SIDE_RANGE if c is None else c
-    return light_ray_channels([light_side_extinction(sigma_t[ch], rays.h, h_ref, rng)
+    return light_ray_channels([light_side_extinction(sigma_t[ch], rays.h, h_ref, c)
                                for ch in channels], queries.n, rays.d)
 
 

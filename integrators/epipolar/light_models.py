@@ -61,7 +61,7 @@ from .blockers import (axial_blocker_beta, axial_map_point, shadow_map_blocker_a
 from .kernel.local import LocalSeparation, local_ray_kernel
 from .kernel.separation import DirectionalSeparation, directional_ray_kernel, separate_kernel
 from .light_factor import light_side_factor
-from .light_rays.directional import light_ray_grid
+from .light_rays.directional import LIGHT_SIDE_RANGE, light_ray_grid
 from .light_rays.local import local_light_ray_grid
 from .local_blockers import radial_blocker_beta, radial_map_point, trace_local_blocker_angles
 from .local_light_factor import light_ray_factor
@@ -87,11 +87,12 @@ class LightModel:
         capture when the rays must reach its farthest sample."""
         raise NotImplementedError
 
-    def light_factor(self, params, queries, rays, k: int = 1, light_side_range=None):
+    def light_factor(self, params, queries, rays, k: int = 1,
+                     light_side_range=LIGHT_SIDE_RANGE):
         """(L, colour, lit): the per-light-ray factor, the light's colour when
         L is grey (else None) and the light rays that carry light (None: all);
         ``light_side_range``: a directional light's c (its light rays beyond
-        it are left out; None: ``LIGHT_SIDE_RANGE``)."""
+        it are left out)."""
         raise NotImplementedError
 
     def trace_blockers(self, params, queries, rays, k: int = 1, lit=None):
@@ -184,7 +185,7 @@ class Directional(LightModel):
     def light_rays(self, params, queries, d, cap=None):
         return light_ray_grid(params, queries, d)
 
-    def light_factor(self, params, queries, rays, k=1, light_side_range=None):
+    def light_factor(self, params, queries, rays, k=1, light_side_range=LIGHT_SIDE_RANGE):
         return light_side_factor(params, queries, rays, light_side_range), None, None
 
     def trace_blockers(self, params, queries, rays, k=1, lit=None):

@@ -10,8 +10,7 @@ import numpy as np
 
 from ..core.light_transport import point, sample_light, scalar, vector
 from .blockers import sub_ray_gamma
-from .light_factor import (LOCAL_LIGHT_SIDE_RANGE, gray, light_ray_channels,
-                           light_side_extinction)
+from .light_factor import LOCAL_LIGHT_SIDE_RANGE, gray, light_ray_channels, light_side_extinction
 from .light_rays.local import LocalLightRays, light_ray_direction
 from .queries import EpipolarQueries
 
