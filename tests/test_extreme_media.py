@@ -130,3 +130,21 @@ def test_a_negative_unshadowed_sum_is_unresolved():
     want = [u < UNRESOLVED_RATIO * m and m > 0 for u, m in zip(U, M)]
     assert got.tolist() == [want[0], want[1], want[2], want[3], False, want[4]]
     assert got.tolist() == [True, True, True, False, False, False]
+
+
+def test_a_partial_render_marches_the_same_dropped_samples():
+    """A partial render of the thick-fog scene (some samples) equals the
+    full render on them, the samples over dropped light rays marched in
+    both (the tree took them from the whole frame's queries once)."""
+    from experiments.error_budget import scene_spec
+
+    scene = scene_spec(2016, "mixed").at_resolution(48, 36).load()
+    integ = mi.load_dict({"type": "epipolar_tree"})
+    full = integ.render_layers(scene, spp=1)
+    mask = np.zeros(48 * 36, bool)
+    mask[700:1000] = True
+    part = integ.render_layers(scene, spp=1, samples=mask)
+    assert full.stats["dropped_marched"] > 0 and part.stats["dropped_marched"] > 0
+    a = np.asarray(full["scattering"]).reshape(-1, 3)[mask]
+    b = np.asarray(part["scattering"]).reshape(-1, 3)[mask]
+    assert np.array_equal(a, b)
