@@ -121,6 +121,24 @@ def test_a_far_marcher_extrapolation_is_refitted_on_finer_steps():
     assert probe.predicted <= qa.SAFETY * 1e-4 * 1.001
 
 
+def test_a_still_far_marcher_choice_is_refitted_through_2048_steps():
+    """The refit through 128 and 512 steps can still see n^-1 (the probe's
+    pixels overestimate the error of a spot's thin shafts more at 512 steps
+    than at 128: held-out seed 2066 chose 5,060 steps for 1e-4, which 512
+    met, 10x the time).  Beyond 2,048 steps the rule measures 2,048 and
+    refits through 512 and 2,048."""
+    coarse, fine = [4e-3, 2e-3], [2e-3, 4.9e-4]            # k = -1 to 512 steps
+    far = [4.9e-4, 1e-5]                                   # 512, 2048 steps: k = -2.8
+    probe = FixedProbe(coarse + fine + far)
+    choice = rq.choose_raymarch(probe, 1e-4)
+    assert [a["steps"] for a in probe.asked] == [64, 128, 128, 512, 512, 2048]
+    k = math.log(far[1] / far[0]) / math.log(4.0)
+    needed = 2048 * (qa.SAFETY * 1e-4 / far[1]) ** (1 / k)
+    assert choice["steps"] == math.ceil(needed) < 2048
+    # without the second refit: 512 (4.9e-4 / 5e-5) ~ 5,000 steps
+    assert rq.refit(FixedProbe(fine), 128, 512, 1e-4, qa.FIT["raymarch"])[0] > 4000
+
+
 def test_a_near_marcher_choice_is_not_refitted():
     probe = FixedProbe([1e-3, 2.5e-4])                     # k = -2: 1e-4 needs ~160 steps
     choice = rq.choose_raymarch(probe, 1e-4)
