@@ -15,7 +15,6 @@ from .core.properties import read_bool, read_choice, read_number
 from .core.quality_auto import register_rule
 from .epipolar.frame import choose_slices, epipolar_frame_of
 from .epipolar.light_models import light_model
-from .epipolar.light_rays.directional import LIGHT_SIDE_RANGE
 from .epipolar.query_terms import assemble_queries
 from .fourier.basis import check_M
 from .fourier.exact import exact_sums
@@ -310,11 +309,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                 rays = model.light_rays(params, whole, d)
             # the direct sum takes more of a directional light's light rays
             # behind the eye than a separated kernel resolves
-            c = (EXACT_LIGHT_SIDE_RANGE if self.exact_visibility(params) and not model.local
-                 else LIGHT_SIDE_RANGE)
-            L, colour, lit = model.light_factor(params, whole, rays,
-                                                **({} if model.local else
-                                                   {"light_side_range": c}))
+            exact = self.exact_visibility(params)
+            side_range = ({"light_side_range": EXACT_LIGHT_SIDE_RANGE}
+                          if exact and not model.local else {})
+            L, colour, lit = model.light_factor(params, whole, rays, **side_range)
         length = model.light_length(params, whole, cap)
         if plan is None:
             self.record(frame_choices=frame_choices(whole, rays) + (("length", length),))
@@ -322,10 +320,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
         self.record(dropped_marched=self.march_dropped(params, queries, rays,
-                                                       (whole, frame_rays), c))
+                                                       (whole, frame_rays), **side_range))
         A = B = None        # the direct sum needs no separated kernel (its own gives U)
         with self.stage("svd") as keep:
-            if self.exact_visibility(params):
+            if exact:
                 pass
             elif plan is not None:
                 A, B = texel_separated_kernel(model, params, queries, rays,

@@ -13,7 +13,7 @@ import numpy as np
 from ..core.light_transport import scalar
 from ..core.opaque import scalar_u32
 from .light_rays.directional import LIGHT_SIDE_RANGE, LightRays
-from .light_rays.layout import LOWEST_LIGHT_SIDE, finite_or_inf, lowest_or_none
+from .light_rays.layout import LOWEST_LIGHT_SIDE, covered_depth, finite_or_inf, lowest_or_none
 from .queries import EpipolarQueries, frame_memo
 
 
@@ -135,9 +135,7 @@ def samples_over_dropped(params, queries: EpipolarQueries, rays, lowest: float |
     dropped = dr.select(dr.isfinite(h) & (scalar(st) * h < -c), 1.0, 0.0)
     before = dr.block_prefix_sum(mi.Float(dropped), rays.d, exclusive=False)   # per row
     d_o = scalar_u32(rays.d)
-    D = rays.query_depth(queries)
-    D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, mi.Float(d_o))
-    k0 = dr.minimum(mi.UInt32(D), d_o - 1)
+    D, k0 = covered_depth(queries, rays, d_o)
     covers = (D > 0.0) & (dr.gather(mi.Float, before, queries.row * d_o + k0) > 0.0)
     mask = dr.zeros(mi.Bool, queries.n_samples)
     dr.scatter(mask, True, queries.sample, active=covers)

@@ -67,6 +67,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.opaque import Divisor, opaque_scalar, scalar_u32, two_or_more
+from ..epipolar.light_rays.layout import covered_depth
 from ..epipolar.queries import frame_memo
 from ..epipolar.query_terms import cell_average
 from .prefilter import FilteredBasis, filtered_visibility, prefix_filter, region_depth_bounds
@@ -255,9 +256,7 @@ class Coverage:
     @staticmethod
     def of(queries, rays) -> "Coverage":
         d, d_o = rays.d, scalar_u32(rays.d)
-        D = rays.query_depth(queries)
-        D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, mi.Float(d_o))
-        k0 = dr.minimum(mi.UInt32(D), d_o - 1)
+        D, k0 = covered_depth(queries, rays, d_o)
         return Coverage(d, queries.row * d_o + k0, D - mi.Float(k0), D - 1.0)
 
     def sum(self, w) -> mi.Float:

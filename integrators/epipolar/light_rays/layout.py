@@ -87,6 +87,16 @@ def rectified_depth(queries, rays: "EqualLightRays") -> mi.TensorXf:
     return mi.TensorXf(queries.padded(D, 0.0), shape=(queries.n, queries.r))
 
 
+def covered_depth(queries, rays, d_o) -> tuple:
+    """(D, k0) per query: its depth ``rays.query_depth`` as a fractional
+    light-ray index clipped to [0, d] (NaN: 0) and the last light ray it
+    (partly) covers in its row, k0 = min(⌊D⌋, d − 1); ``d_o``: d as an
+    opaque kernel parameter."""
+    D = rays.query_depth(queries)
+    D = dr.clip(dr.select(dr.isnan(D), 0.0, D), 0.0, mi.Float(d_o))
+    return D, dr.minimum(mi.UInt32(D), d_o - 1)
+
+
 class EqualLightRays(LightRayLayout):
     """Equally wide light rays from each row's ``γ_lo``: leaf ``g`` covers
     ``γ_lo + [g, g+1)·Δγ``.  Adds the field ``gamma_lo`` ((n,) or None: 0)
