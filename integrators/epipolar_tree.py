@@ -17,6 +17,7 @@ from .core.capture import capture_shadow_map
 from .core.properties import read_bool, read_choice, read_number
 from .core.quality_auto import register_rule
 from .epipolar.blockers import blocker_modes
+from .epipolar.direct_sum import direct_unshadowed
 from .epipolar.last_interval import (last_interval_correction, last_interval_visibility,
                                      sweep_magnitude, unresolved_samples)
 from .epipolar.light_models import light_model
@@ -273,7 +274,9 @@ class EpipolarTreeIntegrator(EpipolarIntegrator):
             value = assemble_queries(terms, gather_queries(queries, integral))
             # sums the separated kernel does not resolve: ray-marched by the
             # template with the samples it re-marches anyway (remarch_disagreeing)
-            unresolved = unresolved_samples(queries, unshadowed, terms.magnitude)
+            direct = (direct_unshadowed(queries, rays, L, last, params.medium.sigma_t)
+                      if model.kernel_recurrence else None)
+            unresolved = unresolved_samples(queries, unshadowed, terms.magnitude, direct)
             keep.extend([value, unshadowed, terms.magnitude, unresolved])
         self.record(last_interval_traced=last.traced, query_count=queries.count,
                     unresolved=self.march_samples(unresolved))
