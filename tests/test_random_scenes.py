@@ -271,24 +271,31 @@ def test_issue13_tree_matches_the_float64_oracle(seed):
 
 def test_unresolved_sums_are_remarched(monkeypatch):
     """Seed 31's bound comes from re-marching the samples whose unshadowed
-    separated sum is below 1e-2 of its magnitude (stats["unresolved"]);
-    UNRESOLVED_RATIO = 0 leaves only the negative sums (always unresolved)
-    and the separated kernel's error (relMSE ~1)."""
+    separated sum is below 1e-2 of its magnitude or off its direct sum
+    (stats["unresolved"]); with both tests off (UNRESOLVED_RATIO = 0
+    leaves only the negative sums, always unresolved; KERNEL_DEPTH = inf
+    checks no direct sum) the separated kernel's error is left (relMSE
+    ~1); either test alone bounds it."""
     from episcatter.reference import render_rgb
     from experiments import common as c
+    from integrators.epipolar import direct_sum as ds
     from integrators.epipolar import last_interval as es
 
     scene = rs.random_scene(31).load()
     ref = render_rgb(scene, c.build("raymarch", {"visibility": "exact", "steps": 2048,
                                                  "output": "scattering"}))
     out = {}
-    for ratio in (1e-2, 0.0):        # the default, off
+    for ratio, depth in ((1e-2, ds.KERNEL_DEPTH), (0.0, np.inf), (1e-2, np.inf),
+                         (0.0, ds.KERNEL_DEPTH)):
         monkeypatch.setattr(es, "UNRESOLVED_RATIO", ratio)
+        monkeypatch.setattr(ds, "KERNEL_DEPTH", depth)
         res = c.build("epipolar_tree", {"output": "scattering"}).render_layers(scene, spp=1)
-        out[ratio] = (res.stats["unresolved"],
-                      st.random_stats(np.array(res["scattering"]), ref, 1.0))
-    assert out[0.0][0] < out[1e-2][0] and not out[0.0][1]["bounded"], out
-    assert out[1e-2][0] > 0 and out[1e-2][1]["bounded"], out
+        out[ratio, depth] = (res.stats["unresolved"],
+                             st.random_stats(np.array(res["scattering"]), ref, 1.0))
+    default, off, *alone = out.values()
+    assert off[0] < default[0] and not off[1]["bounded"], out
+    assert default[0] > 0 and default[1]["bounded"], out
+    assert all(a[0] > off[0] and a[1]["bounded"] for a in alone), out
 
 
 def test_asymptote_band_only_where_a_view_ray_reaches_it(make_scene):
