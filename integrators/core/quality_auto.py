@@ -15,8 +15,8 @@ Common properties (every method, read by the template):
 How a method chooses (:data:`RULES`): a *probe* renders the scene at one
 or two cheap settings of the method and measures their relMSE directly
 on a strided subset of about :data:`PROBE_PIXELS` pixel centres, against
-an exact marcher (``raymarch visibility=exact``, :data:`REFERENCE_STEPS`
-steps) run on that subset alone (a partial render, which marches only
+an exact marcher (``raymarch visibility=exact`` with boundary bisections,
+:func:`reference_settings`) run on that subset alone (a partial render, which marches only
 the masked samples).  An error model per method, with exponents fitted on
 the suite's frontier runs (``python -m experiments.error_budget --fit``,
 constants in :data:`FIT`), turns the probe's errors into a prediction for
@@ -69,9 +69,24 @@ QUALITIES = ("explicit", "auto")
 #: down to a tenth -- the marcher's error on a spot-lit shaft lies in its
 #: edges, which a sparser subset steps over
 PROBE_PIXELS = 1200
-#: steps of the exact marcher the probe's errors are measured against
+#: the exact marcher the probe's errors are measured against
+#: (:func:`reference_settings`): with boundary bisections (each shadow
+#: edge located, :func:`~integrators.core.marching.march_bisected`), and
+#: the finer one a rule may ask for (:meth:`Probe.fine_reference`).  On
+#: 12 held-out scenes at 320x240 (relMSE on the probe's pixels against
+#: 8,192 steps with 12 bisections, :mod:`experiments.error_budget`'s
+#: reference study): 128 steps with 8 bisections 1e-10 ... 3e-7, 256 with 8
+#: at most 1.3e-8, where 512 plain steps had up to 6e-4 (a spot's thin
+#: shafts) and 4,096 up to 3.6e-6, at 1.3x and 0.4x their time
+BISECTED_REFERENCE = {"steps": 128, "boundary_bisections": 8}
+FINE_BISECTED_REFERENCE = {"steps": 256, "boundary_bisections": 8}
+#: steps of the plain exact marcher the probe measures against where a
+#: textured spot light lights the scene: its texture varies inside the lit
+#: intervals the bisections find, which their two samples per segment do
+#: not resolve (three textured spots above: 256 steps with 8 bisections
+#: 1.3e-5 ... 2.4e-5, 4,096 plain steps 2.6e-7 ... 6.4e-7)
 REFERENCE_STEPS = 512
-#: steps of the finer reference a rule may ask for (:meth:`Probe.fine_reference`)
+#: steps of the finer plain reference (:meth:`Probe.fine_reference`)
 FINE_REFERENCE_STEPS = 4096
 #: budgets below this are probed against the finer reference: the
 #: 512-step marcher's own error on thin occluders is of this order (a
@@ -167,16 +182,32 @@ def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float
     return float(np.mean(d2 / (ref.astype(np.float64) ** 2 + floor)))
 
 
+def reference_settings(scene, sensor=0, fine: bool = False) -> dict:
+    """The ``raymarch visibility=exact`` settings the probe of ``scene``
+    measures against (``fine``: the finer reference): the bisected marcher
+    (:data:`BISECTED_REFERENCE`, :data:`FINE_BISECTED_REFERENCE`), or
+    :data:`REFERENCE_STEPS` / :data:`FINE_REFERENCE_STEPS` plain steps
+    where a textured spot light lights the scene."""
+    from .scene_params import SceneParams
+
+    s = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+    if any(light.textured for light in SceneParams.from_scene(scene, s).lights):
+        return {"steps": FINE_REFERENCE_STEPS if fine else REFERENCE_STEPS}
+    return dict(FINE_BISECTED_REFERENCE if fine else BISECTED_REFERENCE)
+
+
 class Probe:
     """The probe of one scene (module doc): renders settings of a method at
     one sample per pixel centre and measures them on :func:`probe_pixels`
-    against the exact marcher on those pixels (``pixels``, ``steps``:
-    :data:`PROBE_PIXELS`, :data:`REFERENCE_STEPS` unless given).  Its
-    full-image renders are kept (:attr:`kept`, by settings) so that a
-    render asking for one of them again reuses it (:func:`render_auto`)."""
+    against the exact marcher on those pixels (``pixels``:
+    :data:`PROBE_PIXELS` unless given; the marcher
+    :func:`reference_settings`, its finer one with ``fine``, or ``steps``
+    plain steps where given).  Its full-image renders are kept
+    (:attr:`kept`, by settings) so that a render asking for one of them
+    again reuses it (:func:`render_auto`)."""
 
     def __init__(self, scene, sensor, method: str, base: dict, pixels: int | None = None,
-                 steps: int | None = None, seed=0):
+                 steps: int | None = None, seed=0, fine: bool = False):
         import mitsuba as mi
 
         self.scene, self.sensor, self.method, self.seed = scene, sensor, method, seed
@@ -188,9 +219,13 @@ class Probe:
         self.pixels = probe_pixels(self.width, self.height, pixels or PROBE_PIXELS)
         self.mask = np.zeros(self.width * self.height, bool)
         self.mask[self.pixels] = True
-        self.reference_steps = steps or REFERENCE_STEPS
+        #: the marcher's settings of the reference and of the finer one
+        self.reference_props = ({"steps": steps} if steps else
+                                reference_settings(scene, s, fine))
+        self.fine_props = (self.reference_props if steps or fine else
+                           reference_settings(scene, s, True))
         ref = mi.load_dict({"type": "raymarch", "visibility": "exact",
-                            "steps": self.reference_steps})
+                            **self.reference_props})
         self.reference = self.values(ref, partial=True)
         #: (settings key, partial) -> the probe pixels' values of a render
         self._rendered = {}
@@ -260,16 +295,16 @@ class Probe:
         return e
 
     def fine_reference(self) -> np.ndarray:
-        """The exact marcher at :data:`FINE_REFERENCE_STEPS` on the probe
-        pixels (made once): errors of settings near the probe's own
-        reference need a finer one."""
+        """The finer reference (:func:`reference_settings` with ``fine``) on
+        the probe pixels (made once): errors of settings near the probe's
+        own reference need a finer one."""
         import mitsuba as mi
 
-        if self.reference_steps >= FINE_REFERENCE_STEPS:
+        if self.fine_props == self.reference_props:
             return self.reference
         if getattr(self, "_fine", None) is None:
             self._fine = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
-                                                   "steps": FINE_REFERENCE_STEPS}), partial=True)
+                                                   **self.fine_props}), partial=True)
         return self._fine
 
     @property
@@ -357,8 +392,7 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
     if not (isinstance(budget, (int, float)) and budget > 0):
         raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
     t0 = time.perf_counter()
-    probe = Probe(scene, sensor, method, base or {}, seed=seed,
-                  steps=FINE_REFERENCE_STEPS if budget < TIGHT_BUDGET else None)
+    probe = Probe(scene, sensor, method, base or {}, seed=seed, fine=budget < TIGHT_BUDGET)
     probe.reusable = reusable
     settings = RULES[method].choose(probe, float(budget), FIT[method])
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
