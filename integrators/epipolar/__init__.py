@@ -18,6 +18,8 @@ Stages, one module each, in pipeline order:
   spot, on :mod:`.kernel.svd` and :mod:`.kernel.table`);
 - :mod:`.query_terms`, :mod:`.local_query_terms`, :mod:`.last_interval`
   — the per-query factors and the end of each view ray;
+- :mod:`.direct_sum` — a query's unshadowed sum summed directly, the
+  check of the separated one where the light side amplifies its error;
 - :mod:`.ring` — the brute-force march of the epipole ring, peak rays and
   disagreeing samples;
 - :mod:`.light_models` — the dispatch over light kinds that the plugins
