@@ -133,16 +133,22 @@ def reference_angle(beta_lo, beta_hi, how: str = "bisectrix"):
 @dataclass(eq=False)
 class RectifiedShadowMap:
     """Depths and texel classes of the rows (module doc); (n·d) texel arrays
-    in (row, light ray) order, (Q,) query arrays."""
+    in (row, light ray) order, (Q,) query arrays.  ``z_r`` may be left
+    unevaluated (made where it is read: the filter's lookups)."""
     n: int
     d: int
-    z: mi.Float          # (n·d) texel depth z_i seen by the filter
+    z: mi.Float          # (n·d) texel depth z_i seen by the filter (see ``z_fill``)
     series: mi.Bool      # (n·d) texel goes through the Fourier series
     lit: mi.Bool         # (n·d) texel lit for every query of its row (exact)
     z_r: mi.Float        # (Q,) query depth
     filtered: mi.Bool    # (n,) row has series texels
     rows: mi.UInt32      # (nf,) the filtered rows
     frow: mi.UInt32      # (n,) index of a filtered row in ``rows``
+    #: (n,) None, or each row's smallest series depth (inf if none): then
+    #: ``z`` holds the series texels' depths and a non-series texel's depth
+    #: is its row's ``z_fill`` (0 if inf), made where it is read
+    #: (:meth:`filtered_depth`)
+    z_fill: mi.Float | None = None
 
     @property
     def texel_row(self) -> mi.UInt32:
@@ -153,9 +159,24 @@ class RectifiedShadowMap:
     def n_filtered(self) -> int:
         return dr.width(self.rows)
 
+    def filtered_depth(self, f, col) -> mi.Float:
+        """The depth of texel ``col`` of filtered row ``f`` (an index into
+        ``two_or_more(rows)``, as :meth:`gather_rows` numbers them)."""
+        src = dr.gather(mi.UInt32, two_or_more(self.rows), f)
+        texel = src * scalar_u32(self.d) + col
+        z = dr.gather(mi.Float, self.z, texel)
+        if self.z_fill is None:
+            return z
+        fill = dr.gather(mi.Float, self.z_fill, src)
+        return dr.select(dr.gather(mi.Bool, self.series, texel), z,
+                         dr.select(dr.isfinite(fill), fill, 0.0))
+
     def z_rows(self) -> mi.TensorXf:
-        """(nf, d) depths of the filtered rows (:meth:`gather_rows`)."""
-        return self.gather_rows(self.z)
+        """(nf, d) depths of the filtered rows (as :meth:`gather_rows`
+        numbers them), made from the map's evaluated arrays."""
+        nf = dr.width(two_or_more(self.rows))
+        f, col = Divisor(self.d).divmod(dr.arange(mi.UInt32, nf * self.d))
+        return mi.TensorXf(self.filtered_depth(f, col), shape=(nf, self.d))
 
     def gather_rows(self, texel_values) -> mi.TensorXf:
         """(nf, d) tensor of a texel array restricted to the filtered rows
@@ -199,18 +220,19 @@ def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> R
         lit = ~series
         z = dr.minimum(beta_b, math.pi) * (1.0 / math.pi)
         z_r = queries.beta * (1.0 / math.pi)
-    # the rows' series counts and smallest series depths in one kernel,
-    # then the rows filtered and their numbers in one more
+    # the rows' series counts and smallest series depths in one kernel with
+    # the texels' classes and depths, then the rows filtered and their
+    # numbers in one more; the filled depths (RectifiedShadowMap.z_fill) and
+    # the queries' depths z_r are made where they are read
     count, z_min = _row_count(series, n, d), _row_min(series, z, n, d)
-    dr.eval(count, z_min)
+    dr.eval(count, z_min, z, series, lit)
     filtered = count > 0
-    z = _fill_non_series(z, series, z_min, n, d)
     ones = dr.select(filtered, mi.UInt32(1), mi.UInt32(0))
     dr.schedule(ones)
     rows = dr.compress(filtered)
     frow = dr.prefix_sum(ones)   # exclusive
-    smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow)
-    dr.eval(smap.z, smap.series, smap.lit, smap.z_r, smap.filtered, smap.frow)
+    smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow, z_min)
+    dr.eval(smap.filtered, smap.frow)
     return smap
 
 
@@ -232,13 +254,6 @@ def _row_min(series, z, n: int, d: int) -> mi.Float:
     z_min = dr.full(mi.Float, dr.inf, n)
     dr.scatter_reduce(dr.ReduceOp.Min, z_min, dr.select(series, z, dr.inf), _texel_rows(n, d))
     return z_min
-
-
-def _fill_non_series(z, series, z_min, n: int, d: int) -> mi.Float:
-    """Non-series texels take the row's smallest series depth ``z_min``
-    (:func:`_row_min`; 0 if none)."""
-    fill = dr.gather(mi.Float, z_min, _texel_rows(n, d))
-    return dr.select(series, z, dr.select(dr.isfinite(fill), fill, 0.0))
 
 
 # --------------------------------------------------------------------------
@@ -325,7 +340,8 @@ def filter_depths(smap: RectifiedShadowMap, regions: int):
     reference ray) reads the same."""
     def make():
         z = smap.z_rows()
-        bounds = region_depth_bounds(z, regions)
+        dr.schedule(z.array)        # with the bounds' inputs (one region: one kernel)
+        bounds = region_depth_bounds(z, regions, smap.filtered_depth)
         dr.eval(z, *bounds)
         return z, bounds
     return frame_memo(smap, ("filter_depths", regions), make)
