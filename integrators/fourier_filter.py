@@ -30,7 +30,7 @@ from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSe
 from .fourier.references import reference_rays
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
-                           row_shift, unresolved_by_separation, unshadowed_band)
+                           row_shift, unresolved_by_separation, unshadowed_band, unshadowed_sums)
 from .fourier.tail import tail_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -358,14 +358,17 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         if unresolved is not None:
             self.record(unresolved=self.march_samples(unresolved))
         kernels = {}        # the channels of one σt share reference rays and kernels
+        parts = [KernelParts.of(queries, rays, L, A, B, c) for c in range(C)]
+        sums = self.stacked_channel_sums(params, queries, rays, smap, cover, parts, sigma_t,
+                                         length, beta_b, tail, kernels)
         for c in range(C):
-            parts = KernelParts.of(queries, rays, L, A, B, c)
-            U_c, V_c, bad = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                              float(sigma_t[c]), length, beta_b, tail,
-                                              kernels)
+            U_c, V_c, bad = (sums[c] if sums is not None else
+                             self.channel_sums(params, queries, rays, smap, cover, parts[c],
+                                               float(sigma_t[c]), length, beta_b, tail,
+                                               kernels))
             U.append(U_c + band[c])
             V.append(V_c)
-            Ls.append(parts.L)
+            Ls.append(parts[c].L)
             if bad is not None:
                 unreliable = bad if unreliable is None else unreliable | bad
         if unreliable is not None:
@@ -450,6 +453,44 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             bad = series_unreliable(near, S, P) if self.exact_fallback else None
             keep.extend([U, V] + ([] if bad is None else [bad]))
         return U, V, bad
+
+    def stacked_channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t,
+                             length: float, beta_b=None, tail=None, kernels=None):
+        """:meth:`channel_sums` of every colour channel at once (a list of
+        their (U, V̄, unreliable)), where the channels share one kernel (a
+        grey σt: a textured spot light's colour) and their weights are
+        several reference rays' (``weights="reference_ray"``): the
+        channels' unshadowed sums in one stack
+        (:func:`~integrators.fourier.sums.unshadowed_sums`), their reference
+        rays layers of one filter (:func:`~integrators.fourier.layers.layered_average`),
+        each channel bit for bit its own :meth:`channel_sums`.  None where
+        that does not apply (one channel, a coloured σt, other weights, the
+        direct sum, one reference ray): the caller runs :meth:`channel_sums`
+        per channel."""
+        sigma_t = np.asarray(sigma_t, np.float64)
+        if (len(parts) < 2 or not np.all(sigma_t == sigma_t[0])
+                or self.weights != "reference_ray" or self.exact_visibility(params)):
+            return None
+        s = float(sigma_t[0])
+        if ("refs", s) not in kernels:
+            kernels["refs", s] = reference_rays(queries, s, length, self.reference_rays)
+        refs = kernels["refs", s]
+        if refs.count <= 1:
+            return None
+        U = unshadowed_sums(parts, cover, queries)
+        band = near_band(self.M) if self.exact_fallback else 0.0
+        out = layered_average(params, queries, rays, smap, cover, [p.L for p in parts], s, refs,
+                              beta_b, tail, kernels, self.filter_settings, self.clamp, band,
+                              self.stage)
+        result = []
+        with self.stage("evaluate") as keep:
+            for U_c, (V, S, P, near) in zip(U, out):
+                if self.clamp:
+                    V = dr.clip(V, 0.0, 1.0)
+                bad = series_unreliable(near, S, P) if self.exact_fallback else None
+                keep.extend([U_c, V] + ([] if bad is None else [bad]))
+                result.append((U_c, V, bad))
+        return result
 
     def fallback(self, params, queries, rays, beta_b, cover, Ls, sigma_ts, tail, V,
                  unreliable, with_runs: bool = False) -> list:

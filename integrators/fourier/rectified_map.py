@@ -322,14 +322,27 @@ def texel_weight(w, texel) -> mi.Float:
     return w if dr.width(w) == 1 else dr.gather(mi.Float, w, texel)
 
 
-def kernel_weights(L, K, size: int, first: int = 0):
+def kernel_weights(L, K, size: int, first: int = 0, per: int = 0):
     """The texel weights ``L · K_l`` of layer ``l`` (``L`` (n·d), ``K`` the
     layers' kernels one after another from layer ``first``, ``size`` = n·d
     each; both evaluated) as a function ``w(l, texel)``, multiplied where
-    it is read (no texel array of its own)."""
+    it is read (no texel array of its own).  ``L`` a list of colour
+    channels' factors over the same ``per`` kernels: layer ``c·per + k``
+    weights by channel c's L and kernel k."""
     size_o, first_o = scalar_u32(size), opaque_scalar(mi.UInt32, first)
-    return lambda l, texel: (dr.gather(mi.Float, L, texel)
-                             * dr.gather(mi.Float, K, (l + first_o) * size_o + texel))
+    if not isinstance(L, list) or len(L) == 1:
+        L = L[0] if isinstance(L, list) else L
+        return lambda l, texel: (dr.gather(mi.Float, L, texel)
+                                 * dr.gather(mi.Float, K, (l + first_o) * size_o + texel))
+    per_o = Divisor(per)
+
+    def w(l, texel):
+        c, k = per_o.divmod(l + first_o)
+        L_t = dr.gather(mi.Float, L[-1], texel)
+        for ch in reversed(range(len(L) - 1)):
+            L_t = dr.select(c == ch, dr.gather(mi.Float, L[ch], texel), L_t)
+        return L_t * dr.gather(mi.Float, K, k * size_o + texel)
+    return w
 
 
 def filter_depths(smap: RectifiedShadowMap, regions: int):
@@ -485,31 +498,42 @@ class ClassSums:
         return tuple(out)
 
 
-def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> ClassSums:
+def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int,
+                       per: int = 0) -> ClassSums:
     """:func:`class_and_total_sums` of the weights ``L · K_k`` of each of
     ``count`` kernels laid one after another in ``K`` (``count``·n·d;
-    :func:`kernel_weights`), bit for bit, as few prefix sums as
-    ``STACK_LIMIT`` allows (one for a frame's reference rays)."""
+    :func:`kernel_weights`, ``L`` a list of channels over ``per`` kernels
+    each: their ``count`` = channels · ``per`` layers), bit for bit, as few
+    prefix sums as ``STACK_LIMIT`` allows (one for a frame's reference
+    rays), their inputs in one kernel (batches of equal width, the last
+    padded with zero weights)."""
     size = dr.width(smap.lit)
-    per = max(1, STACK_LIMIT // (3 * size))
+    per_batch = max(1, STACK_LIMIT // (3 * size))
+    per_batch = -(-count // -(-count // per_batch))      # balanced: equal widths
     batches = []
-    for first in range(0, count, per):
-        n = min(per, count - first)
-        stack = _class_stack(smap, kernel_weights(L, K, size, first), n)
-        dr.eval(stack)
-        batches.append((first, n, dr.block_prefix_sum(stack, cover.d, exclusive=True), stack))
-    return ClassSums(cover, size, count, batches)
+    for first in range(0, count, per_batch):
+        n = min(per_batch, count - first)
+        batches.append((first, n, _class_stack(smap, kernel_weights(L, K, size, first, per),
+                                               per_batch, n if count > per_batch else None)))
+    dr.eval([b[2] for b in batches])
+    return ClassSums(cover, size, count,
+                     [(first, n, dr.block_prefix_sum(stack, cover.d, exclusive=True), stack)
+                      for first, n, stack in batches])
 
 
-def _class_stack(smap: RectifiedShadowMap, weight, count: int) -> mi.Float:
+def _class_stack(smap: RectifiedShadowMap, weight, count: int, used: int | None = None):
     """The 3·count masked copies (lit, series, all) of ``count`` weightings
-    ``weight(k, g)`` (k < count, g a texel), one after another."""
+    ``weight(k, g)`` (k < count, g a texel), one after another; ``used``:
+    only the first ``used`` weightings (the others' copies 0)."""
     size = dr.width(smap.lit)
     j, g = Divisor(size).divmod(dr.arange(mi.UInt32, 3 * count * size))
     k, c = j // 3, j % 3
     keep = dr.select(c == 0, dr.gather(mi.Bool, smap.lit, g),
                      dr.select(c == 1, dr.gather(mi.Bool, smap.series, g), True))
-    return dr.select(keep, weight(k, g), 0.0)
+    if used is None:
+        return dr.select(keep, weight(k, g), 0.0)
+    used_o = opaque_scalar(mi.UInt32, used)
+    return dr.select(keep & (k < used_o), weight(dr.minimum(k, used_o - 1), g), 0.0)
 
 
 def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:

@@ -167,7 +167,8 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref, count: int = 1) 
     return kernel(t, dr.tan(0.5 * dr.gather(mi.Float, beta_ref, row)))
 
 
-def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=None) -> tuple:
+def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=None,
+                     channels: int = 1):
     """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
     of its two nearest reference rays k (the others' shares are 0): the
     shadowed and the unshadowed weighted sums of ray k and any further
@@ -176,25 +177,34 @@ def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=No
     returns ``sums(k, active)``, the tuple X_k of each query's ray ``k``
     (where ``active``).  One kernel per batch whatever the number of rays;
     the sums added in the order of k (bit for bit one ray at a time).
+    ``channels`` > 1: the rays of that many colour channels laid one after
+    another (channel c's ray k is ``c·refs.count + k``): a list of the
+    tuples, one per channel, each bit for bit its channel's alone.
     The sums of every batch but the last are evaluated (``evaluate``: a
     context manager whose yielded list is evaluated at its exit, a timed
     stage; ``None``: plainly); the last batch's are left to the caller's
     kernel."""
-    out = None
+    outs = [None] * channels
     for i, (first, count) in enumerate(batches):
         sums_of = layer_sums(first, count)
         lo, hi = opaque_scalar(mi.UInt32, first), opaque_scalar(mi.UInt32, first + count)
-        for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
-            use = (share > 0.0) & (k >= lo) & (k < hi)
-            sums = sums_of(k, use)
-            if out is None:
-                out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
-            out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+        for c in range(channels):
+            base = mi.UInt32(0) if c == 0 else scalar_u32(c * refs.count)
+            out = outs[c]
+            for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
+                k = k if c == 0 else k + base
+                use = (share > 0.0) & (k >= lo) & (k < hi)
+                sums = sums_of(k, use)
+                if out is None:
+                    out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+                out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+            outs[c] = out
         if i + 1 < len(batches):
+            every = [x for out in outs for x in out]
             with (evaluate() if evaluate is not None else contextlib.nullcontext([])) as keep:
-                keep.extend(out)
-            dr.eval(out)
-    return tuple(out)
+                keep.extend(every)
+            dr.eval(every)
+    return tuple(outs[0]) if channels == 1 else [tuple(out) for out in outs]
 
 
 def interpolated_kernel_reference(gamma, beta, beta_lo, beta_hi, sigma_t: float,
