@@ -361,6 +361,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         parts = [KernelParts.of(queries, rays, L, A, B, c) for c in range(C)]
         sums = self.stacked_channel_sums(params, queries, rays, smap, cover, parts, sigma_t,
                                          length, beta_b, tail, kernels)
+        if sums is not None:
+            sums, unreliable = sums
         for c in range(C):
             U_c, V_c, bad = (sums[c] if sums is not None else
                              self.channel_sums(params, queries, rays, smap, cover, parts[c],
@@ -369,7 +371,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             U.append(U_c + band[c])
             V.append(V_c)
             Ls.append(parts[c].L)
-            if bad is not None:
+            if bad is not None and sums is None:
                 unreliable = bad if unreliable is None else unreliable | bad
         if unreliable is not None:
             with self.stage("evaluate") as keep:
@@ -463,7 +465,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         channels' unshadowed sums in one stack
         (:func:`~integrators.fourier.sums.unshadowed_sums`), their reference
         rays layers of one filter (:func:`~integrators.fourier.layers.layered_average`),
-        each channel bit for bit its own :meth:`channel_sums`.  None where
+        each channel bit for bit its own :meth:`channel_sums`; with the
+        union of their unreliable masks (evaluated with them).  None where
         that does not apply (one channel, a coloured σt, other weights, the
         direct sum, one reference ray): the caller runs :meth:`channel_sums`
         per channel."""
@@ -482,15 +485,19 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         out = layered_average(params, queries, rays, smap, cover, [p.L for p in parts], s, refs,
                               beta_b, tail, kernels, self.filter_settings, self.clamp, band,
                               self.stage)
-        result = []
+        result, unreliable = [], None
         with self.stage("evaluate") as keep:
             for U_c, (V, S, P, near) in zip(U, out):
                 if self.clamp:
                     V = dr.clip(V, 0.0, 1.0)
                 bad = series_unreliable(near, S, P) if self.exact_fallback else None
-                keep.extend([U_c, V] + ([] if bad is None else [bad]))
+                keep.extend([U_c, V])
                 result.append((U_c, V, bad))
-        return result
+                if bad is not None:
+                    unreliable = bad if unreliable is None else unreliable | bad
+            if unreliable is not None:      # the fallback's mask, with them
+                keep.append(unreliable)
+        return result, unreliable
 
     def fallback(self, params, queries, rays, beta_b, cover, Ls, sigma_ts, tail, V,
                  unreliable, with_runs: bool = False) -> list:

@@ -156,14 +156,13 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref, count: int = 1) 
     texture) in L."""
     s, gamma = rays.positions(0.0)
     size = dr.width(gamma)
-    if count > 1:
-        dr.schedule(s)          # read at every ray's lanes: with the kernel's own arrays
     kernel = (rays.own_kernel(sigma_t)
               or light_model(params).ray_kernel(params, queries, rays, sigma_t))
     if count == 1:
         return kernel(dr.arange(mi.UInt32, size), dr.tan(0.5 * dr.gather(mi.Float, beta_ref, s)))
     k, t = Divisor(size).divmod(dr.arange(mi.UInt32, count * size))
-    row = k * scalar_u32(dr.width(beta_ref) // count) + dr.gather(mi.UInt32, s, t)
+    # the light ray's row at every ray's lanes, as ``positions`` numbers it
+    row = k * scalar_u32(dr.width(beta_ref) // count) + Divisor(rays.d).div(t)
     return kernel(t, dr.tan(0.5 * dr.gather(mi.Float, beta_ref, row)))
 
 
