@@ -92,7 +92,7 @@ def layered_average(params, queries, rays, smap: RectifiedShadowMap, cover, L, s
     alone.  ``stage(name)``: the integrator's timed stages ("prefilter",
     "evaluate")."""
     if ("kernels", sigma_t) not in kernels:
-        K = row_kernel(params, queries, rays, sigma_t, refs.beta, refs.count)
+        K = row_kernel(params, queries, rays, sigma_t, refs, refs.count)
         dr.eval(K)
         kernels["kernels", sigma_t] = K
     K = kernels["kernels", sigma_t]
