@@ -24,6 +24,7 @@ from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
                                       projective_query_terms, texel_separated_kernel)
 from .fourier.quality import FILTER_RULE
 from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
+                                    query_beta_range,
                                     class_and_total_sums, near_band, near_step_weight,
                                     prefilter_rows, rectified_shadow_map, series_sum,
                                     series_unreliable, series_visibility)
@@ -282,15 +283,17 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """L_scat of every query (§3, Listing 4); ``plan``: the projective
         map's rows (:meth:`~integrators.fourier.rows.projective_plan`), None: epipolar slices."""
         rect = self.rectified_sums(params, cap, queries, plan)
-        with self.stage("unrectify") as keep:
+        with self.stage("unrectify"):
             V_near = near_visibility(queries, rect.rays, rect.beta_b)
             if plan is not None:
                 terms = projective_query_terms(params, cap, queries, rect.rays, V_near)
             else:
                 terms = light_model(params).query_terms(params, cap, queries, rect.rays,
                                                         rect.colour, V_near)
+            # evaluated by the next kernel over the queries, the template's
+            # disagreement test (design §5: a stage's result only the next
+            # kernel of its width reads)
             value = assemble_queries(terms, rect.integral())
-            keep.append(value)
         return value
 
     def rectified_sums(self, params, cap, queries, plan=None) -> "RectifiedSums":
@@ -334,6 +337,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               band_cells=self.band_cells(model, plan))
             keep.extend([] if A is None else [A, B])
         with self.stage("rectify"):
+            query_beta_range(queries)       # with the coverage's kernel
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)

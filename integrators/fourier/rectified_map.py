@@ -85,14 +85,16 @@ MIN_SPAN = 1e-7
 
 def query_beta_range(queries):
     """(β_lo, β_hi) per row: the smallest and largest β of its queries,
-    evaluated once per frame's queries (the map, the references and the
-    sums read them)."""
+    made once per frame's queries (the map, the references and the sums
+    read them) and scheduled: evaluated with the next kernel over the
+    queries (the filter asks for them before its coverage's), or where
+    first read."""
     def make():
         lo = dr.full(mi.Float, dr.inf, queries.n)
         hi = dr.full(mi.Float, -dr.inf, queries.n)
         dr.scatter_reduce(dr.ReduceOp.Min, lo, queries.beta, queries.row)
         dr.scatter_reduce(dr.ReduceOp.Max, hi, queries.beta, queries.row)
-        dr.eval(lo, hi)
+        dr.schedule(lo, hi)
         return lo, hi
     return frame_memo(queries, ("query_beta_range",), make)
 
