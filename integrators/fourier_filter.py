@@ -191,8 +191,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     two neighbouring slices (or its nearest slice, row); visibility is resolved to a light-ray interval
     (texel); point/spot: the short segment between pinhole and near plane
     is one midpoint sample; projective: the segment in front of the map's
-    first edge takes the first texel's visibility.  Coloured σt or a
-    textured light runs every filter once per channel.
+    first edge takes the first texel's visibility.  Coloured σt runs every
+    filter once per channel; a textured light in a grey medium stacks its
+    channels as layers of the reference rays' filter
+    (:meth:`stacked_channel_sums`).
 
     Klehm, Seidel, Eisemann: Filter-Based Real-Time Single Scattering using
     Rectified Shadow Maps, JCGT 3(3), 2014.
