@@ -24,13 +24,14 @@ from .fourier.projective_rays import (ProjectiveLightRays, projective_map_rays,
                                       projective_query_terms, texel_separated_kernel)
 from .fourier.quality import FILTER_RULE
 from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSettings,
+                                    query_beta_range,
                                     class_and_total_sums, near_band, near_step_weight,
                                     prefilter_rows, rectified_shadow_map, series_sum,
                                     series_unreliable, series_visibility)
 from .fourier.references import reference_rays
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
-                           row_shift, unresolved_by_separation, unshadowed_band)
+                           row_shift, unresolved_by_separation, unshadowed_band, unshadowed_sums)
 from .fourier.tail import tail_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -190,8 +191,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
     two neighbouring slices (or its nearest slice, row); visibility is resolved to a light-ray interval
     (texel); point/spot: the short segment between pinhole and near plane
     is one midpoint sample; projective: the segment in front of the map's
-    first edge takes the first texel's visibility.  Coloured σt or a
-    textured light runs every filter once per channel.
+    first edge takes the first texel's visibility.  Coloured σt runs every
+    filter once per channel; a textured light in a grey medium stacks its
+    channels as layers of the reference rays' filter
+    (:meth:`stacked_channel_sums`).
 
     Klehm, Seidel, Eisemann: Filter-Based Real-Time Single Scattering using
     Rectified Shadow Maps, JCGT 3(3), 2014.
@@ -282,15 +285,17 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         """L_scat of every query (§3, Listing 4); ``plan``: the projective
         map's rows (:meth:`~integrators.fourier.rows.projective_plan`), None: epipolar slices."""
         rect = self.rectified_sums(params, cap, queries, plan)
-        with self.stage("unrectify") as keep:
+        with self.stage("unrectify"):
             V_near = near_visibility(queries, rect.rays, rect.beta_b)
             if plan is not None:
                 terms = projective_query_terms(params, cap, queries, rect.rays, V_near)
             else:
                 terms = light_model(params).query_terms(params, cap, queries, rect.rays,
                                                         rect.colour, V_near)
+            # evaluated by the next kernel over the queries, the template's
+            # disagreement test (design §5: a stage's result only the next
+            # kernel of its width reads)
             value = assemble_queries(terms, rect.integral())
-            keep.append(value)
         return value
 
     def rectified_sums(self, params, cap, queries, plan=None) -> "RectifiedSums":
@@ -334,6 +339,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               band_cells=self.band_cells(model, plan))
             keep.extend([] if A is None else [A, B])
         with self.stage("rectify"):
+            query_beta_range(queries)       # with the coverage's kernel
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)
@@ -358,15 +364,20 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         if unresolved is not None:
             self.record(unresolved=self.march_samples(unresolved))
         kernels = {}        # the channels of one σt share reference rays and kernels
+        parts = [KernelParts.of(queries, rays, L, A, B, c) for c in range(C)]
+        sums = self.stacked_channel_sums(params, queries, rays, smap, cover, parts, sigma_t,
+                                         length, beta_b, tail, kernels)
+        if sums is not None:
+            sums, unreliable = sums
         for c in range(C):
-            parts = KernelParts.of(queries, rays, L, A, B, c)
-            U_c, V_c, bad = self.channel_sums(params, queries, rays, smap, cover, parts,
-                                              float(sigma_t[c]), length, beta_b, tail,
-                                              kernels)
+            U_c, V_c, bad = (sums[c] if sums is not None else
+                             self.channel_sums(params, queries, rays, smap, cover, parts[c],
+                                               float(sigma_t[c]), length, beta_b, tail,
+                                               kernels))
             U.append(U_c + band[c])
             V.append(V_c)
-            Ls.append(parts.L)
-            if bad is not None:
+            Ls.append(parts[c].L)
+            if bad is not None and sums is None:
                 unreliable = bad if unreliable is None else unreliable | bad
         if unreliable is not None:
             with self.stage("evaluate") as keep:
@@ -450,6 +461,49 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             bad = series_unreliable(near, S, P) if self.exact_fallback else None
             keep.extend([U, V] + ([] if bad is None else [bad]))
         return U, V, bad
+
+    def stacked_channel_sums(self, params, queries, rays, smap, cover, parts, sigma_t,
+                             length: float, beta_b=None, tail=None, kernels=None):
+        """:meth:`channel_sums` of every colour channel at once (a list of
+        their (U, V̄, unreliable)), where the channels share one kernel (a
+        grey σt: a textured spot light's colour) and their weights are
+        several reference rays' (``weights="reference_ray"``): the
+        channels' unshadowed sums in one stack
+        (:func:`~integrators.fourier.sums.unshadowed_sums`), their reference
+        rays layers of one filter (:func:`~integrators.fourier.layers.layered_average`),
+        each channel bit for bit its own :meth:`channel_sums`; with the
+        union of their unreliable masks (evaluated with them).  None where
+        that does not apply (one channel, a coloured σt, other weights, the
+        direct sum, one reference ray): the caller runs :meth:`channel_sums`
+        per channel."""
+        sigma_t = np.asarray(sigma_t, np.float64)
+        if (len(parts) < 2 or not np.all(sigma_t == sigma_t[0])
+                or self.weights != "reference_ray" or self.exact_visibility(params)):
+            return None
+        s = float(sigma_t[0])
+        if ("refs", s) not in kernels:
+            kernels["refs", s] = reference_rays(queries, s, length, self.reference_rays)
+        refs = kernels["refs", s]
+        if refs.count <= 1:
+            return None
+        U = unshadowed_sums(parts, cover, queries)
+        band = near_band(self.M) if self.exact_fallback else 0.0
+        out = layered_average(params, queries, rays, smap, cover, [p.L for p in parts], s, refs,
+                              beta_b, tail, kernels, self.filter_settings, self.clamp, band,
+                              self.stage)
+        result, unreliable = [], None
+        with self.stage("evaluate") as keep:
+            for U_c, (V, S, P, near) in zip(U, out):
+                if self.clamp:
+                    V = dr.clip(V, 0.0, 1.0)
+                bad = series_unreliable(near, S, P) if self.exact_fallback else None
+                keep.extend([U_c, V])
+                result.append((U_c, V, bad))
+                if bad is not None:
+                    unreliable = bad if unreliable is None else unreliable | bad
+            if unreliable is not None:      # the fallback's mask, with them
+                keep.append(unreliable)
+        return result, unreliable
 
     def fallback(self, params, queries, rays, beta_b, cover, Ls, sigma_ts, tail, V,
                  unreliable, with_runs: bool = False) -> list:

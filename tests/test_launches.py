@@ -19,7 +19,7 @@ TREE_LAUNCHES = 40
 FILTER_DIRECTIONAL_LAUNCHES = 40
 #: ... and with a point or spot light (a regression guard: the issue's
 #: target is 40)
-FILTER_LOCAL_LAUNCHES = 75
+FILTER_LOCAL_LAUNCHES = 50
 
 
 def _warm_log(scene, integ):

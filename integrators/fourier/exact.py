@@ -59,9 +59,13 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
     d = scalar_u32(rays.d)
     sigma = scalar(sigma_t)
     row, beta, texel, frac = queries.row, queries.beta, cover.texel, cover.frac
+    # the traced runs' changes, of every channel, at all traced queries in
+    # one kernel (read at ``idx``) where the trace kept its queries
+    frame_tail = (row, beta, texel, frac, tail) if tail is not None and tail.idx is not None \
+        else None
     if idx is not None:
         row, beta, texel, frac = (dr.gather(type(x), x, idx) for x in (row, beta, texel, frac))
-        tail = None if tail is None else tail.subset(idx)
+        tail = None if tail is None or frame_tail is not None else tail.subset(idx)
     count = dr.width(beta)
     first = row * d
     k0 = texel - first                        # last (partly) covered texel
@@ -99,7 +103,15 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
                           labels=("g", "k") + tuple(f"num{c}" for c in range(C))
                           + tuple(f"den{c}" for c in range(C)), label="fourier_exact_sums")
     num, den = list(state[2:2 + C]), list(state[2 + C:])
-    if tail is not None:     # the traced end runs instead of the map there
+    if frame_tail is not None:
+        deltas = _tail_deltas(params, queries, rays, beta_b, Ls, sigma, geometric, kernel,
+                              *frame_tail)
+        at = dr.arange(mi.UInt32, count) if idx is None else idx
+        Q = scalar_u32(queries.count)
+        for c in range(C):
+            off = at if c == 0 else scalar_u32(c) * Q + at
+            num[c] += dr.select(active, dr.gather(mi.Float, deltas, off), 0.0)
+    elif tail is not None:     # the traced end runs instead of the map there
         def kernel_at(t, q):
             tq = dr.tan(0.5 * dr.gather(mi.Float, beta, q))    # tan, where read (no kernel)
             if not geometric:
@@ -112,3 +124,29 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
                                lambda t, q: dr.gather(mi.Float, Ls[c], t) * kernel_at(t, q))
             num[c] += dr.select(active, delta, 0.0)
     return (num, den) if isinstance(L, list) else (num[0], den[0])
+
+
+def _tail_deltas(params, queries, rays, beta_b, Ls, sigma, geometric: bool, kernel,
+                 row, beta, texel, frac, tail) -> mi.Float:
+    """(C·Q) the traced end runs' change of each channel's shadowed sum
+    (:meth:`~integrators.fourier.tail.TailVisibility.delta`, channel c at
+    c·Q + q) of every query, in one kernel; each bit for bit
+    :func:`exact_sums`' own per query."""
+    d = scalar_u32(rays.d)
+
+    def kernel_at(t, q):
+        tq = dr.tan(0.5 * dr.gather(mi.Float, beta, q))    # tan, where read (no kernel)
+        if not geometric:
+            return kernel(t, tq)
+        r = dr.gather(mi.UInt32, row, q)
+        gamma = rays.start(r) + mi.Float(t - r * d) * dr.gather(mi.Float, rays.delta_gamma, r)
+        return dr.exp(-sigma * tq * gamma)
+
+    def weight(t, q, c=None):
+        L_t = dr.gather(mi.Float, Ls[-1], t)
+        if c is not None:
+            for ch in reversed(range(len(Ls) - 1)):
+                L_t = dr.select(c == ch, dr.gather(mi.Float, Ls[ch], t), L_t)
+        return L_t * kernel_at(t, q)
+    return tail.delta(row, texel, frac, beta, beta_b, rays.d,
+                      weight if len(Ls) > 1 else (lambda t, q: weight(t, q)), len(Ls))

@@ -17,7 +17,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.opaque import opaque_scalar, scalar_u32, two_or_more
+from ..core.opaque import Divisor, opaque_scalar, scalar_u32, two_or_more
 from .prefilter import FilteredBasis, filtered_visibility
 from .rectified_map import (RectifiedShadowMap, kernel_weights, near_step_weight, prefilter_rows,
                             stacked_class_sums)
@@ -41,17 +41,25 @@ def layer_batches(smap: RectifiedShadowMap, M: int, count: int) -> list:
 
 
 def prefilter_layers(smap: RectifiedShadowMap, L, K, counts, first: int, layers: int,
-                     opt) -> FilteredBasis:
+                     opt, per: int = 0) -> FilteredBasis:
     """The filters of layers ``first .. first + layers − 1``: layer ``l``
     weights texel t by ``L[t] · K[l·n·d + t]`` (``K``: the layers' kernels
-    one after another, :func:`~integrators.fourier.references.row_kernel`)
-    and filters only the rows that have it (``counts[row] > l``: the rows'
-    layer counts)."""
-    weights = kernel_weights(L, K, dr.width(smap.lit), first)
+    one after another, :func:`~integrators.fourier.references.row_kernel`;
+    ``L`` a list of colour channels over ``per`` kernels each: layer
+    ``c·per + k`` weights by channel c's L and kernel k,
+    :func:`~integrators.fourier.rectified_map.kernel_weights`) and filters
+    only the rows that have it (``counts[row] > k``: the rows' layer
+    counts)."""
+    weights = kernel_weights(L, K, dr.width(smap.lit), first, per)
     first_o = opaque_scalar(mi.UInt32, first)
+    if isinstance(L, list) and len(L) > 1:
+        per_o = Divisor(per)
+        ray = (lambda l: per_o.divmod(l + first_o)[1])
+    else:
+        ray = (lambda l: l + first_o)
     return prefilter_rows(smap, weights if layers > 1 else (lambda texel: weights(0, texel)),
                           opt, layers,
-                          rows=lambda l, src: dr.gather(mi.UInt32, counts, src) > l + first_o)
+                          rows=lambda l, src: dr.gather(mi.UInt32, counts, src) > ray(l))
 
 
 def layer_visibility(smap: RectifiedShadowMap, fb: FilteredBasis, first: int, queries, cover,
@@ -77,30 +85,36 @@ def layered_average(params, queries, rays, smap: RectifiedShadowMap, cover, L, s
     :func:`~integrators.fourier.rectified_map.near_step_weight`; 0: none).
     The rays' kernels (kept in ``kernels`` for the other channels of this
     σt), class sums and end-run corrections (``tail``) are made together
-    once; the filters as layers, in batches (module doc).  ``stage(name)``:
-    the integrator's timed stages ("prefilter", "evaluate")."""
+    once; the filters as layers, in batches (module doc).  ``L`` a list of
+    colour channels' factors over the same kernels: every channel's rays
+    are layers of the same filter (layer ``c·count + k``), and the result
+    is a list of the four per channel, each bit for bit its channel's
+    alone.  ``stage(name)``: the integrator's timed stages ("prefilter",
+    "evaluate")."""
     if ("kernels", sigma_t) not in kernels:
-        K = row_kernel(params, queries, rays, sigma_t, refs.beta, refs.count)
+        K = row_kernel(params, queries, rays, sigma_t, refs, refs.count)
         dr.eval(K)
         kernels["kernels", sigma_t] = K
     K = kernels["kernels", sigma_t]
+    channels = len(L) if isinstance(L, list) else 1
+    count = channels * refs.count
     size = dr.width(smap.lit)
     # each ray's weights multiplied where they are read: by the filter,
     # the class sums and the tail correction
-    sums = stacked_class_sums(smap, cover, L, K, refs.count)
+    sums = stacked_class_sums(smap, cover, L, K, count, refs.count)
     corrections = None
-    if tail is not None:     # every ray's at ray·Q + query, one kernel
-        corrections = tail.correction(queries, cover, beta_b, kernel_weights(L, K, size),
-                                      refs.count)
+    if tail is not None:     # every layer's at layer·Q + query, one kernel
+        corrections = tail.correction(queries, cover, beta_b,
+                                      kernel_weights(L, K, size, 0, refs.count), count)
         dr.eval(corrections)
     Q_o = scalar_u32(queries.count)
     ones = dr.full(mi.Float, 1.0, queries.count)
 
-    def layer_sums(first, count):
+    def layer_sums(first, layers):
         fb = None
         with stage("prefilter") as keep:
             if smap.n_filtered:
-                fb = prefilter_layers(smap, L, K, refs.counts, first, count, opt)
+                fb = prefilter_layers(smap, L, K, refs.counts, first, layers, opt, refs.count)
                 keep.extend([fb.B_bar, fb.W])
 
         def of(k, use):
@@ -118,6 +132,8 @@ def layered_average(params, queries, rays, smap: RectifiedShadowMap, cover, L, s
             return S, P, near_step_weight(series, drop)
         return of
 
-    batches = layer_batches(smap, opt.M, refs.count) or [(0, refs.count)]
-    S, P, near = interpolated_sum(refs, batches, layer_sums, lambda: stage("evaluate"))
-    return dr.select(P > 0.0, S / P, 1.0), S, P, near
+    batches = layer_batches(smap, opt.M, count) or [(0, count)]
+    out = interpolated_sum(refs, batches, layer_sums, lambda: stage("evaluate"), channels)
+    out = [(dr.select(P > 0.0, S / P, 1.0), S, P, near)
+           for S, P, near in (out if channels > 1 else [out])]
+    return out if isinstance(L, list) else out[0]

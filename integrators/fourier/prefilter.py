@@ -93,15 +93,19 @@ def _weights_array(weights, n_rows: int, n: int):
     raise ValueError(f"weights must have shape ({n},) or ({n_rows}, {n}), got {w.shape}.")
 
 
-def region_depth_bounds(z: mi.TensorXf, regions: int):
-    """``(z_lo, z_hi)``: min and max blocker depth of every (row, region)."""
+def region_depth_bounds(z: mi.TensorXf, regions: int, depth=None):
+    """``(z_lo, z_hi)``: min and max blocker depth of every (row, region);
+    ``depth``: None, or a function ``depth(row, i)`` giving ``z[row, i]``
+    from evaluated arrays (a ``z`` left unevaluated is then made in the
+    bounds' kernel where the widths agree, one region)."""
     n_rows, n = z.shape
     L = region_length(n, regions)
     n_o, RL_o = opaque_scalar(mi.UInt32, n), opaque_scalar(mi.UInt32, regions * L)
     idx = dr.arange(mi.UInt32, n_rows * regions * L)
     row, i = idx // RL_o, idx % RL_o
     valid = i < n_o
-    zi = dr.gather(mi.Float, z.array, row * n_o + i, valid)
+    zi = (dr.gather(mi.Float, z.array, row * n_o + i, valid) if depth is None
+          else depth(row, dr.select(valid, i, 0)))
     lo_in, hi_in = dr.select(valid, zi, dr.inf), dr.select(valid, zi, -dr.inf)
     dr.eval(lo_in, hi_in)           # one kernel for both reductions' inputs
     z_lo = dr.block_reduce(dr.ReduceOp.Min, lo_in, L)

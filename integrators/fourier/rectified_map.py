@@ -85,14 +85,16 @@ MIN_SPAN = 1e-7
 
 def query_beta_range(queries):
     """(β_lo, β_hi) per row: the smallest and largest β of its queries,
-    evaluated once per frame's queries (the map, the references and the
-    sums read them)."""
+    made once per frame's queries (the map, the references and the sums
+    read them) and scheduled: evaluated with the next kernel over the
+    queries (the filter asks for them before its coverage's), or where
+    first read."""
     def make():
         lo = dr.full(mi.Float, dr.inf, queries.n)
         hi = dr.full(mi.Float, -dr.inf, queries.n)
         dr.scatter_reduce(dr.ReduceOp.Min, lo, queries.beta, queries.row)
         dr.scatter_reduce(dr.ReduceOp.Max, hi, queries.beta, queries.row)
-        dr.eval(lo, hi)
+        dr.schedule(lo, hi)
         return lo, hi
     return frame_memo(queries, ("query_beta_range",), make)
 
@@ -133,16 +135,22 @@ def reference_angle(beta_lo, beta_hi, how: str = "bisectrix"):
 @dataclass(eq=False)
 class RectifiedShadowMap:
     """Depths and texel classes of the rows (module doc); (n·d) texel arrays
-    in (row, light ray) order, (Q,) query arrays."""
+    in (row, light ray) order, (Q,) query arrays.  ``z_r`` may be left
+    unevaluated (made where it is read: the filter's lookups)."""
     n: int
     d: int
-    z: mi.Float          # (n·d) texel depth z_i seen by the filter
+    z: mi.Float          # (n·d) texel depth z_i seen by the filter (see ``z_fill``)
     series: mi.Bool      # (n·d) texel goes through the Fourier series
     lit: mi.Bool         # (n·d) texel lit for every query of its row (exact)
     z_r: mi.Float        # (Q,) query depth
     filtered: mi.Bool    # (n,) row has series texels
     rows: mi.UInt32      # (nf,) the filtered rows
     frow: mi.UInt32      # (n,) index of a filtered row in ``rows``
+    #: (n,) None, or each row's smallest series depth (inf if none): then
+    #: ``z`` holds the series texels' depths and a non-series texel's depth
+    #: is its row's ``z_fill`` (0 if inf), made where it is read
+    #: (:meth:`filtered_depth`)
+    z_fill: mi.Float | None = None
 
     @property
     def texel_row(self) -> mi.UInt32:
@@ -153,9 +161,24 @@ class RectifiedShadowMap:
     def n_filtered(self) -> int:
         return dr.width(self.rows)
 
+    def filtered_depth(self, f, col) -> mi.Float:
+        """The depth of texel ``col`` of filtered row ``f`` (an index into
+        ``two_or_more(rows)``, as :meth:`gather_rows` numbers them)."""
+        src = dr.gather(mi.UInt32, two_or_more(self.rows), f)
+        texel = src * scalar_u32(self.d) + col
+        z = dr.gather(mi.Float, self.z, texel)
+        if self.z_fill is None:
+            return z
+        fill = dr.gather(mi.Float, self.z_fill, src)
+        return dr.select(dr.gather(mi.Bool, self.series, texel), z,
+                         dr.select(dr.isfinite(fill), fill, 0.0))
+
     def z_rows(self) -> mi.TensorXf:
-        """(nf, d) depths of the filtered rows (:meth:`gather_rows`)."""
-        return self.gather_rows(self.z)
+        """(nf, d) depths of the filtered rows (as :meth:`gather_rows`
+        numbers them), made from the map's evaluated arrays."""
+        nf = dr.width(two_or_more(self.rows))
+        f, col = Divisor(self.d).divmod(dr.arange(mi.UInt32, nf * self.d))
+        return mi.TensorXf(self.filtered_depth(f, col), shape=(nf, self.d))
 
     def gather_rows(self, texel_values) -> mi.TensorXf:
         """(nf, d) tensor of a texel array restricted to the filtered rows
@@ -199,18 +222,19 @@ def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> R
         lit = ~series
         z = dr.minimum(beta_b, math.pi) * (1.0 / math.pi)
         z_r = queries.beta * (1.0 / math.pi)
-    # the rows' series counts and smallest series depths in one kernel,
-    # then the rows filtered and their numbers in one more
+    # the rows' series counts and smallest series depths in one kernel with
+    # the texels' classes and depths, then the rows filtered and their
+    # numbers in one more; the filled depths (RectifiedShadowMap.z_fill) and
+    # the queries' depths z_r are made where they are read
     count, z_min = _row_count(series, n, d), _row_min(series, z, n, d)
-    dr.eval(count, z_min)
+    dr.eval(count, z_min, z, series, lit)
     filtered = count > 0
-    z = _fill_non_series(z, series, z_min, n, d)
     ones = dr.select(filtered, mi.UInt32(1), mi.UInt32(0))
     dr.schedule(ones)
     rows = dr.compress(filtered)
     frow = dr.prefix_sum(ones)   # exclusive
-    smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow)
-    dr.eval(smap.z, smap.series, smap.lit, smap.z_r, smap.filtered, smap.frow)
+    smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow, z_min)
+    dr.eval(smap.filtered, smap.frow)
     return smap
 
 
@@ -232,13 +256,6 @@ def _row_min(series, z, n: int, d: int) -> mi.Float:
     z_min = dr.full(mi.Float, dr.inf, n)
     dr.scatter_reduce(dr.ReduceOp.Min, z_min, dr.select(series, z, dr.inf), _texel_rows(n, d))
     return z_min
-
-
-def _fill_non_series(z, series, z_min, n: int, d: int) -> mi.Float:
-    """Non-series texels take the row's smallest series depth ``z_min``
-    (:func:`_row_min`; 0 if none)."""
-    fill = dr.gather(mi.Float, z_min, _texel_rows(n, d))
-    return dr.select(series, z, dr.select(dr.isfinite(fill), fill, 0.0))
 
 
 # --------------------------------------------------------------------------
@@ -307,14 +324,27 @@ def texel_weight(w, texel) -> mi.Float:
     return w if dr.width(w) == 1 else dr.gather(mi.Float, w, texel)
 
 
-def kernel_weights(L, K, size: int, first: int = 0):
+def kernel_weights(L, K, size: int, first: int = 0, per: int = 0):
     """The texel weights ``L · K_l`` of layer ``l`` (``L`` (n·d), ``K`` the
     layers' kernels one after another from layer ``first``, ``size`` = n·d
     each; both evaluated) as a function ``w(l, texel)``, multiplied where
-    it is read (no texel array of its own)."""
+    it is read (no texel array of its own).  ``L`` a list of colour
+    channels' factors over the same ``per`` kernels: layer ``c·per + k``
+    weights by channel c's L and kernel k."""
     size_o, first_o = scalar_u32(size), opaque_scalar(mi.UInt32, first)
-    return lambda l, texel: (dr.gather(mi.Float, L, texel)
-                             * dr.gather(mi.Float, K, (l + first_o) * size_o + texel))
+    if not isinstance(L, list) or len(L) == 1:
+        L = L[0] if isinstance(L, list) else L
+        return lambda l, texel: (dr.gather(mi.Float, L, texel)
+                                 * dr.gather(mi.Float, K, (l + first_o) * size_o + texel))
+    per_o = Divisor(per)
+
+    def w(l, texel):
+        c, k = per_o.divmod(l + first_o)
+        L_t = dr.gather(mi.Float, L[-1], texel)
+        for ch in reversed(range(len(L) - 1)):
+            L_t = dr.select(c == ch, dr.gather(mi.Float, L[ch], texel), L_t)
+        return L_t * dr.gather(mi.Float, K, k * size_o + texel)
+    return w
 
 
 def filter_depths(smap: RectifiedShadowMap, regions: int):
@@ -325,7 +355,8 @@ def filter_depths(smap: RectifiedShadowMap, regions: int):
     reference ray) reads the same."""
     def make():
         z = smap.z_rows()
-        bounds = region_depth_bounds(z, regions)
+        dr.schedule(z.array)        # with the bounds' inputs (one region: one kernel)
+        bounds = region_depth_bounds(z, regions, smap.filtered_depth)
         dr.eval(z, *bounds)
         return z, bounds
     return frame_memo(smap, ("filter_depths", regions), make)
@@ -469,31 +500,42 @@ class ClassSums:
         return tuple(out)
 
 
-def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int) -> ClassSums:
+def stacked_class_sums(smap: RectifiedShadowMap, cover: Coverage, L, K, count: int,
+                       per: int = 0) -> ClassSums:
     """:func:`class_and_total_sums` of the weights ``L · K_k`` of each of
     ``count`` kernels laid one after another in ``K`` (``count``·n·d;
-    :func:`kernel_weights`), bit for bit, as few prefix sums as
-    ``STACK_LIMIT`` allows (one for a frame's reference rays)."""
+    :func:`kernel_weights`, ``L`` a list of channels over ``per`` kernels
+    each: their ``count`` = channels · ``per`` layers), bit for bit, as few
+    prefix sums as ``STACK_LIMIT`` allows (one for a frame's reference
+    rays), their inputs in one kernel (batches of equal width, the last
+    padded with zero weights)."""
     size = dr.width(smap.lit)
-    per = max(1, STACK_LIMIT // (3 * size))
+    per_batch = max(1, STACK_LIMIT // (3 * size))
+    per_batch = -(-count // -(-count // per_batch))      # balanced: equal widths
     batches = []
-    for first in range(0, count, per):
-        n = min(per, count - first)
-        stack = _class_stack(smap, kernel_weights(L, K, size, first), n)
-        dr.eval(stack)
-        batches.append((first, n, dr.block_prefix_sum(stack, cover.d, exclusive=True), stack))
-    return ClassSums(cover, size, count, batches)
+    for first in range(0, count, per_batch):
+        n = min(per_batch, count - first)
+        batches.append((first, n, _class_stack(smap, kernel_weights(L, K, size, first, per),
+                                               per_batch, n if count > per_batch else None)))
+    dr.eval([b[2] for b in batches])
+    return ClassSums(cover, size, count,
+                     [(first, n, dr.block_prefix_sum(stack, cover.d, exclusive=True), stack)
+                      for first, n, stack in batches])
 
 
-def _class_stack(smap: RectifiedShadowMap, weight, count: int) -> mi.Float:
+def _class_stack(smap: RectifiedShadowMap, weight, count: int, used: int | None = None):
     """The 3·count masked copies (lit, series, all) of ``count`` weightings
-    ``weight(k, g)`` (k < count, g a texel), one after another."""
+    ``weight(k, g)`` (k < count, g a texel), one after another; ``used``:
+    only the first ``used`` weightings (the others' copies 0)."""
     size = dr.width(smap.lit)
     j, g = Divisor(size).divmod(dr.arange(mi.UInt32, 3 * count * size))
     k, c = j // 3, j % 3
     keep = dr.select(c == 0, dr.gather(mi.Bool, smap.lit, g),
                      dr.select(c == 1, dr.gather(mi.Bool, smap.series, g), True))
-    return dr.select(keep, weight(k, g), 0.0)
+    if used is None:
+        return dr.select(keep, weight(k, g), 0.0)
+    used_o = opaque_scalar(mi.UInt32, used)
+    return dr.select(keep & (k < used_o), weight(dr.minimum(k, used_o - 1), g), 0.0)
 
 
 def shadowed_sum(smap: RectifiedShadowMap, cover: Coverage, w, V_series) -> mi.Float:

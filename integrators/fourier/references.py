@@ -92,6 +92,8 @@ class ReferenceRays:
     beta: mi.Float        # (count·n) β_k of every row r at k·n + r (k < counts[r])
     node: mi.UInt32       # (Q,) k: the query's lower reference ray
     frac: mi.Float        # (Q,) f ∈ [0, 1]: its position toward ray k + 1
+    #: β_k at lanes j = k·n + r (``beta`` made where it is read), or None
+    beta_at: object = None
 
 
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
@@ -120,13 +122,16 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
     dr.schedule(counts, last, s_lo, span, lo)           # with the read of the most rays
     K = int(dr.max(counts)[0]) if dr.width(counts) else 1
     n = dr.width(counts)
-    # β_k of every row, ray-major: (k, row) lanes
-    k, r = Divisor(n).divmod(dr.arange(mi.UInt32, K * n))
-    at = (lambda x: dr.gather(type(x), x, r))
-    s_k = dr.select(at(counts) > 1, at(s_lo) + at(span) * (mi.Float(k) / at(last)),
-                    at(s_lo) + 0.5 * at(span))
-    b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
-    beta = dr.select(at(span) > 0.0, b_k, at(lo))
+    per = Divisor(n)
+
+    def beta_at(j):
+        """β_k of every row, ray-major: (k, row) at lane j = k·n + row."""
+        k, r = per.divmod(j)
+        at = (lambda x: dr.gather(type(x), x, r))
+        s_k = dr.select(at(counts) > 1, at(s_lo) + at(span) * (mi.Float(k) / at(last)),
+                        at(s_lo) + 0.5 * at(span))
+        b_k = decay_angle(s_k, sigma_t, length) if decays else s_k
+        return dr.select(at(span) > 0.0, b_k, at(lo))
     span_q = dr.gather(mi.Float, span, queries.row)
     last_q = dr.gather(mi.Float, last, queries.row)
     u = dr.select(span_q > 0.0,
@@ -134,15 +139,17 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
     u = dr.clip(u, 0.0, last_q)
     node = dr.minimum(mi.UInt32(u), mi.UInt32(last_q) - 1)
     frac = dr.select(dr.gather(mi.UInt32, counts, queries.row) > 1, u - mi.Float(node), 0.0)
-    dr.eval(beta, node, frac)
-    return ReferenceRays(K, counts, beta, node, frac)
+    # β_k, node and frac made where they are read (the kernels, the
+    # queries' sums) from the rows' evaluated arrays
+    return ReferenceRays(K, counts, beta_at(dr.arange(mi.UInt32, K * n)), node, frac, beta_at)
 
 
 def row_kernel(params, queries, rays, sigma_t: float, beta_ref, count: int = 1) -> mi.Float:
     """K(γ, β_ref) per light ray (n·d) for one reference angle per row
     ``beta_ref`` (n,), the light side included (Klehm §3.2, Eq. 11);
     ``count`` angles per row (``beta_ref`` (count·n), ray-major as
-    :attr:`ReferenceRays.beta`): their kernels (count·n·d) one after
+    :attr:`ReferenceRays.beta`, or the :class:`ReferenceRays`, whose β_k
+    are then made where read): their kernels (count·n·d) one after
     another, in one kernel.
     Directional: e^{-σt γ_g tan(β_ref/2)} at the light ray's start γ_g
     (equal light rays: the factor of the interval's mean is common to the
@@ -156,18 +163,23 @@ def row_kernel(params, queries, rays, sigma_t: float, beta_ref, count: int = 1) 
     texture) in L."""
     s, gamma = rays.positions(0.0)
     size = dr.width(gamma)
-    if count > 1:
-        dr.schedule(s)          # read at every ray's lanes: with the kernel's own arrays
     kernel = (rays.own_kernel(sigma_t)
               or light_model(params).ray_kernel(params, queries, rays, sigma_t))
     if count == 1:
+        if isinstance(beta_ref, ReferenceRays):
+            beta_ref = beta_ref.beta
         return kernel(dr.arange(mi.UInt32, size), dr.tan(0.5 * dr.gather(mi.Float, beta_ref, s)))
     k, t = Divisor(size).divmod(dr.arange(mi.UInt32, count * size))
-    row = k * scalar_u32(dr.width(beta_ref) // count) + dr.gather(mi.UInt32, s, t)
-    return kernel(t, dr.tan(0.5 * dr.gather(mi.Float, beta_ref, row)))
+    # the light ray's row at every ray's lanes, as ``positions`` numbers it
+    refs = beta_ref if isinstance(beta_ref, ReferenceRays) else None
+    n = dr.width(refs.counts) if refs is not None else dr.width(beta_ref) // count
+    row = k * scalar_u32(n) + Divisor(rays.d).div(t)
+    return kernel(t, dr.tan(0.5 * (refs.beta_at(row) if refs is not None
+                                   else dr.gather(mi.Float, beta_ref, row))))
 
 
-def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=None) -> tuple:
+def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=None,
+                     channels: int = 1):
     """Per query Σ_k share_k X_k for every sum X of the tuple (S_k, P_k, ...)
     of its two nearest reference rays k (the others' shares are 0): the
     shadowed and the unshadowed weighted sums of ray k and any further
@@ -176,25 +188,34 @@ def interpolated_sum(refs: ReferenceRays, batches: list, layer_sums, evaluate=No
     returns ``sums(k, active)``, the tuple X_k of each query's ray ``k``
     (where ``active``).  One kernel per batch whatever the number of rays;
     the sums added in the order of k (bit for bit one ray at a time).
+    ``channels`` > 1: the rays of that many colour channels laid one after
+    another (channel c's ray k is ``c·refs.count + k``): a list of the
+    tuples, one per channel, each bit for bit its channel's alone.
     The sums of every batch but the last are evaluated (``evaluate``: a
     context manager whose yielded list is evaluated at its exit, a timed
     stage; ``None``: plainly); the last batch's are left to the caller's
     kernel."""
-    out = None
+    outs = [None] * channels
     for i, (first, count) in enumerate(batches):
         sums_of = layer_sums(first, count)
         lo, hi = opaque_scalar(mi.UInt32, first), opaque_scalar(mi.UInt32, first + count)
-        for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
-            use = (share > 0.0) & (k >= lo) & (k < hi)
-            sums = sums_of(k, use)
-            if out is None:
-                out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
-            out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+        for c in range(channels):
+            base = mi.UInt32(0) if c == 0 else scalar_u32(c * refs.count)
+            out = outs[c]
+            for k, share in ((refs.node, 1.0 - refs.frac), (refs.node + 1, refs.frac)):
+                k = k if c == 0 else k + base
+                use = (share > 0.0) & (k >= lo) & (k < hi)
+                sums = sums_of(k, use)
+                if out is None:
+                    out = [dr.zeros(mi.Float, dr.width(refs.frac)) for _ in sums]
+                out = [x + dr.select(use, share * x_k, 0.0) for x, x_k in zip(out, sums)]
+            outs[c] = out
         if i + 1 < len(batches):
+            every = [x for out in outs for x in out]
             with (evaluate() if evaluate is not None else contextlib.nullcontext([])) as keep:
-                keep.extend(out)
-            dr.eval(out)
-    return tuple(out)
+                keep.extend(every)
+            dr.eval(every)
+    return tuple(outs[0]) if channels == 1 else [tuple(out) for out in outs]
 
 
 def interpolated_kernel_reference(gamma, beta, beta_lo, beta_hi, sigma_t: float,

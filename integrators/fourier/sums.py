@@ -70,10 +70,12 @@ class KernelParts:
 
     def __init__(self, L, A, B, terms=None):
         self.L, self.A, self.B = L, A, B
-        #: (A array, B array, stride, offsets): where the used components
+        #: (A array, B array, stride): where the used components (``used``)
         #: lie in A (n·d·C·N) and B (n·r·C·N) -- for sums over all of them
         #: in kernels that do not depend on their count
         self.terms = terms
+        #: the used components' offsets in A and B (c·N + i), on the host
+        self.used = []
 
     @staticmethod
     def of(queries, rays, L, A, B, c: int) -> "KernelParts":
@@ -97,36 +99,60 @@ class KernelParts:
             b = dr.gather(mi.Float, B.array, queries.slot * stride + offset)
             A_c.append(dr.gather(mi.Float, A.array, lanes * stride + offset))
             B_c.append(b)
-        offsets = uints([c * N + i for i in range(N) if used[i]])
-        return KernelParts(L_c, A_c, B_c, (A.array, B.array, stride, offsets))
+        parts = KernelParts(L_c, A_c, B_c, (A.array, B.array, stride))
+        parts.used = [c * N + i for i in range(N) if used[i]]
+        return parts
 
     def unshadowed(self, cover: Coverage, queries) -> mi.Float:
         """U(β) = Σ_n B_n(β) Σ_γ L A_n cover: the query's sum without
-        blockers (the closed form of unblocked rows): the components' L A_n
-        stacked and prefix-summed at once, and U summed over them in a
-        loop (``queries``: theirs) -- two kernels, the same for any rank;
-        the sums of adding one component after another (a stacked prefix
-        sum sums each row's block as a lone one does)."""
-        U = dr.zeros(mi.Float, dr.width(cover.frac))
-        if not self.A:
-            return U
-        A, B, stride, offsets = self.terms
-        count = dr.width(offsets)
-        size = dr.width(self.L)
-        per = Divisor(size)
-        comp, t = per.divmod(dr.arange(mi.UInt32, count * size))
-        stack = (dr.gather(mi.Float, self.L, t)
-                 * dr.gather(mi.Float, A, t * stride + dr.gather(mi.UInt32, offsets, comp)))
-        dr.eval(stack)
-        P = dr.block_prefix_sum(stack, cover.d, exclusive=True)
-        slot = queries.slot * stride
-        n_c = scalar_u32(count)
+        blockers (the closed form of unblocked rows):
+        :func:`unshadowed_sums` of this channel alone."""
+        return unshadowed_sums([self], cover, queries)[0]
 
-        def body(i, U):
-            b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets, i))
-            return i + 1, U + b * cover.read(P, stack, i * per.d)
-        _, U = dr.while_loop(state=(mi.UInt32(0), U), cond=lambda i, U: i < n_c, body=body)
-        return U
+
+def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
+    """:meth:`KernelParts.unshadowed` of each channel's parts (one
+    separated kernel A, B; their L apart): every channel's components' L
+    A_n stacked and prefix-summed at once, and each channel's U summed over
+    its components in a loop (``queries``: theirs) -- two kernels, the same
+    for any rank and channel count; the sums of adding one component after
+    another (a stacked prefix sum sums each row's block as a lone one
+    does), each U bit for bit its channel's alone."""
+    out = [dr.zeros(mi.Float, dr.width(cover.frac)) for _ in parts]
+    live = [c for c, p in enumerate(parts) if p.A]
+    if not live:
+        return out
+    A, B, stride = parts[live[0]].terms
+    first, offsets, owner = {}, [], []
+    for c in live:
+        first[c] = len(offsets)
+        offsets += parts[c].used
+        owner += [c] * len(parts[c].used)
+    offsets_o, owner_o = uints(offsets), uints(owner)
+    count = len(offsets)
+    size = dr.width(parts[live[0]].L)
+    per = Divisor(size)
+    comp, t = per.divmod(dr.arange(mi.UInt32, count * size))
+    if len(live) == 1:
+        L_t = dr.gather(mi.Float, parts[live[0]].L, t)
+    else:
+        ch = dr.gather(mi.UInt32, owner_o, comp)
+        L_t = dr.gather(mi.Float, parts[live[-1]].L, t)
+        for c in reversed(live[:-1]):
+            L_t = dr.select(ch == c, dr.gather(mi.Float, parts[c].L, t), L_t)
+    stack = L_t * dr.gather(mi.Float, A, t * stride + dr.gather(mi.UInt32, offsets_o, comp))
+    dr.eval(stack)
+    P = dr.block_prefix_sum(stack, cover.d, exclusive=True)
+    slot = queries.slot * stride
+    for c in live:
+        base, n_c = scalar_u32(first[c]), scalar_u32(len(parts[c].used))
+
+        def body(i, U, base=base):
+            b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets_o, base + i))
+            return i + 1, U + b * cover.read(P, stack, (base + i) * per.d)
+        _, out[c] = dr.while_loop(state=(mi.UInt32(0), out[c]),
+                                  cond=lambda i, U, n_c=n_c: i < n_c, body=body)
+    return out
 
 
 def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,

@@ -259,6 +259,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         the whole frame so that a partial render marches what the full one
         does)."""
         with self.stage("ring"):
+            # the values, where the method left them unevaluated, with the
+            # disagreement's test (one kernel over the queries)
+            dr.schedule(values)
             cone = cone_samples(params, queries)     # its test with the disagreement's
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
             remarch = union_samples(queries.n_samples, remarch, cone())

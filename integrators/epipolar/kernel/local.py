@@ -315,13 +315,18 @@ def local_kernel(params, sigma_t: float, L: float, x_max: float, tan_half_beta, 
 def local_ray_kernel(params, queries, rays: LocalLightRays, sigma_t: float):
     """The mean of K(γ, β) over light ray t's interval as a function of
     (flat light-ray index t, per-lane tan(β/2)) (:func:`local_kernel`); the
-    point/spot light model's ``ray_kernel``."""
-    s, gamma = rays.positions(0.0)
+    point/spot light model's ``ray_kernel``.  The light ray's start and
+    width are made where they are read, from its row's evaluated arrays
+    (as :meth:`~integrators.epipolar.light_rays.layout.EqualLightRays.positions`
+    gives them at lane t): no kernel of their own."""
     L, x_max = float(queries.frame.light_distance), query_x_max(queries)
-    delta = dr.gather(mi.Float, rays.delta_gamma, s)
-    dr.eval(gamma, delta)       # read at any t: one kernel (with what the caller scheduled)
-    return lambda t, tan: local_kernel(params, sigma_t, L, x_max, tan, dr.gather(mi.Float, gamma, t),
-                                       dr.gather(mi.Float, delta, t))
+    per = Divisor(rays.d)
+
+    def kernel(t, tan):
+        s, g = per.divmod(t)
+        return local_kernel(params, sigma_t, L, x_max, tan, rays.position(s, g, 0.0),
+                            dr.gather(mi.Float, rays.delta_gamma, s))
+    return kernel
 
 
 def separate_local_channel(params, sigma_t: float, L: float, x_max: float, gamma_lo: float,
