@@ -359,7 +359,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             keep.append(band)
             if A is not None and plan is None:
                 # samples whose U the separated kernel cannot resolve: marched
-                unresolved = unresolved_by_separation(queries, A, B, L, cover)
+                unresolved = unresolved_by_separation(
+                    queries, A, B, L, cover, rays if model.kernel_recurrence else None, sigma_t)
                 keep.append(unresolved)
         if unresolved is not None:
             self.record(unresolved=self.march_samples(unresolved))

@@ -11,6 +11,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, uints
+from ..epipolar.direct_sum import direct_unshadowed
 from ..epipolar.last_interval import LastInterval, sweep_magnitude, unresolved_samples
 from ..epipolar.light_rays.directional import LightRays
 from ..epipolar.queries import frame_memo
@@ -176,7 +177,8 @@ def covered_interval(queries, cover: Coverage) -> LastInterval:
     return LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
 
 
-def unresolved_by_separation(queries, A, B, L, cover: Coverage) -> mi.Bool:
+def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None,
+                             sigma_t=None) -> mi.Bool:
     """Camera samples (a mask) with a query whose unshadowed sum U the
     separated kernel does not resolve: U below
     :data:`~integrators.epipolar.last_interval.UNRESOLVED_RATIO` of the
@@ -185,9 +187,18 @@ def unresolved_by_separation(queries, A, B, L, cover: Coverage) -> mi.Bool:
     tree's test).  In a thick medium a query's U is then a float32
     cancellation of terms scaled by the row's brightest light rays, wrong
     whatever the rank (held-out directional seed 2012: 20× the exact U);
-    the series' V̄ multiplies it.  Such samples are ray-marched."""
-    M, U = sweep_magnitude(queries, A, B, L, covered_interval(queries, cover))
-    return unresolved_samples(queries, U, M)
+    the series' V̄ multiplies it.  ``direct_rays``, ``sigma_t``: a
+    directional light's equally wide light rays and the medium's σt, with
+    which U is also checked against its direct sum where the kernel decays
+    along the query
+    (:func:`~integrators.epipolar.direct_sum.direct_unshadowed`, the
+    tree's second test: a thick fog seen toward the sun, where the light
+    side grows as the kernel decays).  Such samples are ray-marched."""
+    last = covered_interval(queries, cover)
+    M, U = sweep_magnitude(queries, A, B, L, last)
+    direct = (None if direct_rays is None else
+              direct_unshadowed(queries, direct_rays, L, last, sigma_t))
+    return unresolved_samples(queries, U, M, direct)
 
 
 def row_shift(a, smap) -> mi.Float:
