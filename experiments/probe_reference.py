@@ -8,7 +8,7 @@ partial render of the probe's pixels, as the probe runs it).
 
 Candidates: plain midpoint steps (512, 4,096: the probe's references
 before) and the bisected marcher
-(:func:`integrators.core.marching.march_bisected`) at 128/256/512/1024
+(:func:`integrators.core.marching.march_bisected`) at 64/128/256/512/1024
 steps; a textured spot light marks its row (its texture varies inside
 the lit intervals the bisections find).
 
@@ -31,6 +31,7 @@ OUT = Path(__file__).resolve().parent.parent / "results" / NAME
 SEEDS = (2000, 2001, 2002, 2003, 2004, 2007, 2014, 2016, 2017, 2018, 2020, 2021, 2028)
 TRUTH = {"steps": 8192, "boundary_bisections": 12}
 CANDIDATES = {"plain 512": {"steps": 512}, "plain 4096": {"steps": 4096},
+              "bisected 64x8": {"steps": 64, "boundary_bisections": 8},
               "bisected 128x8": {"steps": 128, "boundary_bisections": 8},
               "bisected 256x8": {"steps": 256, "boundary_bisections": 8},
               "bisected 512x6": {"steps": 512, "boundary_bisections": 6},

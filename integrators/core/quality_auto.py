@@ -72,20 +72,21 @@ PROBE_PIXELS = 1200
 #: the exact marcher the probe's errors are measured against
 #: (:func:`reference_settings`): with boundary bisections (each shadow
 #: edge located, :func:`~integrators.core.marching.march_bisected`), and
-#: the finer one a rule may ask for (:meth:`Probe.fine_reference`).  On
+#: the finer one a rule may ask for (:meth:`Probe.fine_reference`).  On 10
 #: held-out scenes at 320x240 without a textured light (relMSE on the
 #: probe's pixels against 8,192 steps with 12 bisections,
-#: :mod:`experiments.probe_reference`): 128 steps with 8 bisections
-#: 1e-10 ... 3e-7, 256 with 8 at most 1.3e-8, where 512 plain steps had up
-#: to 6e-4 (a spot's thin shafts) and 4,096 up to 3.6e-6, at about 1.3x
-#: and 0.4x their time
-BISECTED_REFERENCE = {"steps": 128, "boundary_bisections": 8}
+#: :mod:`experiments.probe_reference`, ``results/probe_reference``): 64
+#: steps with 8 bisections at most 1.8e-6, in 0.8-1.4x the time of 512
+#: plain steps, which had up to 6e-4 (a spot's thin shafts); 256 with 8 at
+#: most 1.0e-8, in 0.3-0.45x the time of 4,096 plain steps (up to 3.6e-6)
+BISECTED_REFERENCE = {"steps": 64, "boundary_bisections": 8}
 FINE_BISECTED_REFERENCE = {"steps": 256, "boundary_bisections": 8}
 #: steps of the plain exact marcher the probe measures against where a
 #: textured spot light lights the scene: its texture varies inside the lit
 #: intervals the bisections find, which their two samples per segment do
 #: not resolve (three textured spots there: 256 steps with 8 bisections
-#: 1.3e-5 ... 2.4e-5, 4,096 plain steps 2.6e-7 ... 6.4e-7)
+#: 1.3e-5 ... 2.4e-5, 4,096 plain steps 2.6e-7 ... 6.4e-7; 64 with 8 up to
+#: 3.8e-4, 512 plain steps up to 3.6e-5)
 REFERENCE_STEPS = 512
 #: steps of the finer plain reference (:meth:`Probe.fine_reference`)
 FINE_REFERENCE_STEPS = 4096
