@@ -319,8 +319,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                           if exact and not model.local else {})
             L, colour, lit = model.light_factor(params, whole, rays, **side_range)
         length = model.light_length(params, whole, cap)
-        if plan is None:
-            self.record(frame_choices=frame_choices(whole, rays) + (("length", length),))
         frame_rays = rays
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
@@ -338,6 +336,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               self.svd_tolerance, frame_rays=frame_rays,
                                               band_cells=self.band_cells(model, plan))
             keep.extend([] if A is None else [A, B])
+        if plan is None:
+            # after the separation, whose reads of the queries' domain
+            # evaluated the x it reads (no kernel of its own)
+            self.record(frame_choices=frame_choices(whole, frame_rays) + (("length", length),))
         with self.stage("rectify"):
             query_beta_range(queries)       # with the coverage's kernel
             cover = Coverage.of(queries, rays)
