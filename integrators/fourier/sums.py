@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, uints
 from ..epipolar.direct_sum import direct_unshadowed
+from ..epipolar.kernel.separation import nonzero_terms
 from ..epipolar.last_interval import LastInterval, sweep_magnitude, unresolved_samples
 from ..epipolar.light_rays.directional import LightRays
 from ..epipolar.queries import frame_memo
@@ -53,9 +54,14 @@ def channels(L: mi.TensorXf, A: mi.TensorXf | None, sigma_t) -> int:
 def used_components(queries, B) -> np.ndarray:
     """(C, N) whether some query's B of channel c, component i is not 0
     (the components a channel's sums need), for every channel in one
-    kernel and one read, once per frame's queries and B."""
+    read, once per frame's queries and B: the flags the kernel that wrote
+    B made (:func:`~integrators.epipolar.kernel.separation.nonzero_terms`),
+    else in one kernel of their own."""
     def make():
         C, N = B.shape[2], B.shape[3]
+        flags = nonzero_terms(queries, B)
+        if flags is not None:
+            return np.asarray(flags).reshape(C, N)
         term, q = Divisor(queries.count).divmod(dr.arange(mi.UInt32, C * N * queries.count))
         b_all = dr.gather(mi.Float, B.array, queries.slot_of(q) * scalar_u32(C * N) + term)
         used = dr.zeros(mi.UInt32, C * N)
