@@ -341,7 +341,10 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             # evaluated the x it reads (no kernel of its own)
             self.record(frame_choices=frame_choices(whole, frame_rays) + (("length", length),))
         with self.stage("rectify"):
-            query_beta_range(queries)       # with the coverage's kernel
+            # with the coverage's kernel: the queries' β range and what the
+            # query terms (unrectify stage) read of the queries alone
+            query_beta_range(queries)
+            model.schedule_query_terms(params, cap, queries)
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)

@@ -16,7 +16,7 @@ from .blockers import mode_visibility
 from .kernel.local import Angles, LocalKernel, interval_bounds, lit_domain, query_x, query_x_max
 from .last_interval import factor_arrays
 from .light_rays.local import LocalLightRays
-from .queries import EpipolarQueries
+from .queries import EpipolarQueries, frame_memo
 from .query_terms import QueryTerms
 
 
@@ -60,7 +60,7 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
     # distance (there the midpoint's error is below ~1e-4 of the segment)
     t0 = dr.dot(q, omega)
     b = dr.norm(q - omega * t0)
-    idx = dr.compress((t_near > NEAR_RATIO * dr.norm(q)) & (b > 1e-4 * dr.norm(q)))
+    idx = dr.compress(near_nodes(params, cap, queries))
     if not dr.width(idx):
         return value
     omega = dr.gather(mi.Vector3f, omega, idx)
@@ -73,6 +73,24 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
         total += term * dr.square(dist) * dr.exp(-sigma_t * t) * w
     dr.scatter(value, total * ((th_b - th_a) / b), idx)
     return value
+
+
+def near_nodes(params, cap, queries: EpipolarQueries) -> mi.Bool:
+    """(Q,) the queries whose near segment :func:`near_segment` integrates
+    with its nodes (t_near > NEAR_RATIO·L, the ray not through the light),
+    made once per frame's queries and scheduled: evaluated by the next
+    kernel over the queries (a method asks for it before one, e.g. its
+    coverage's), or where :func:`near_segment` compresses it."""
+    def make():
+        omega = dr.gather(mi.Vector3f, cap.omega, queries.sample)
+        o = mi.Point3f(point(params.camera.origin))
+        q = mi.Vector3f(point(params.light.position)) - mi.Vector3f(o)
+        t0 = dr.dot(q, omega)
+        b = dr.norm(q - omega * t0)
+        mask = (queries.t_near > NEAR_RATIO * dr.norm(q)) & (b > 1e-4 * dr.norm(q))
+        dr.schedule(mask)
+        return mask
+    return frame_memo(queries, ("near_nodes", params, cap), make)
 
 
 def reaches_asymptote_band(params, queries: EpipolarQueries, rays: LocalLightRays,
