@@ -31,7 +31,8 @@ from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSe
 from .fourier.references import reference_rays
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
-                           row_shift, unresolved_by_separation, unshadowed_band, unshadowed_sums)
+                           row_shift, schedule_band, unresolved_by_separation,
+                           unshadowed_band, unshadowed_sums)
 from .fourier.tail import tail_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -351,6 +352,8 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             smap = self.rectified_map(queries, rays, beta_b)
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
+            # the band's queries with the traced runs' mask (one kernel)
+            schedule_band(model, queries, rays, A, cover, self.band_cells(model, plan))
             tail = (tail_visibility(params, cap, queries, rays, beta_b, cover)
                     if self.trace_ends else None)
             self.record(tail_traced=0 if tail is None else tail.traced)

@@ -65,8 +65,8 @@ from .light_rays.directional import LIGHT_SIDE_RANGE, light_ray_grid
 from .light_rays.local import local_light_ray_grid
 from .local_blockers import radial_blocker_beta, radial_map_point, trace_local_blocker_angles
 from .local_light_factor import light_ray_factor
-from .local_query_terms import (asymptote_band_correction, local_query_terms, near_nodes,
-                                reaches_asymptote_band)
+from .local_query_terms import (asymptote_band_correction, band_queries, local_query_terms,
+                                near_nodes, reaches_asymptote_band)
 from .query_terms import directional_query_terms
 
 
@@ -143,6 +143,10 @@ class LightModel:
         """What the sweep's sum of each query misses in the asymptote band
         of a banded kernel (0: no band)."""
         return 0.0
+
+    def schedule_band(self, queries, rays, last, band_cells: int) -> None:
+        """Schedule what :meth:`band_correction` will read of the queries
+        alone (evaluated by the next kernel over them; nothing by default)."""
 
     def band_for(self, params, queries, rays, band_cells: int) -> int:
         """The asymptote band a render needs: ``band_cells`` where some
@@ -233,6 +237,10 @@ class Local(LightModel):
 
     def band_for(self, params, queries, rays, band_cells):
         return band_cells if reaches_asymptote_band(params, queries, rays, band_cells) else 0
+
+    def schedule_band(self, queries, rays, last, band_cells):
+        if band_cells:
+            band_queries(queries, rays, last, band_cells)
 
     def schedule_query_terms(self, params, cap, queries):
         near_nodes(params, cap, queries)

@@ -115,6 +115,29 @@ def reaches_asymptote_band(params, queries: EpipolarQueries, rays: LocalLightRay
     return bool(dr.any(near)[0])
 
 
+def band_queries(queries: EpipolarQueries, rays: LocalLightRays, last, band_cells: int):
+    """(g_a, k0, reaches) per query: the first cell of its asymptote band
+    (row-local, at least k0 − band_cells − 1), its last covered cell
+    ``last.k0`` (both as floats) and whether it reaches the band
+    (:func:`asymptote_band_correction`), made once per frame's queries and
+    ``last`` and scheduled, with the frame's x (read by the kernel's
+    domain): evaluated by the next kernel over the queries (a method asks
+    for them before one, e.g. its traced runs' mask), or where
+    :func:`asymptote_band_correction` compresses the mask."""
+    def make():
+        delta32 = np.float32(rays.delta_gamma[0])
+        m_s = mi.Float(dr.gather(mi.UInt32, rays.offset, queries.row))
+        k0 = mi.Float(last.k0)
+        # ÷Δγ as Dr.Jit compiles a division by a literal: × its float32 reciprocal
+        j_a = dr.floor((math.pi - queries.beta) * scalar(np.float32(1.0) / delta32) - band_cells)
+        g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
+        reaches = (g_a <= k0) & (queries.beta < math.pi)
+        dr.schedule(g_a, k0, last.k0, reaches)
+        query_x(queries.whole_frame)
+        return g_a, k0, reaches
+    return frame_memo(queries, ("band_queries", rays, last, band_cells), make)
+
+
 def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLightRays, A, B, L,
                                modes, last, band_cells: int) -> mi.Color3f:
     """Per query, the change of the sweep's sum when its light-ray cells in
@@ -135,18 +158,9 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     out = dr.zeros(mi.Color3f, queries.count)
     if not band_cells or not queries.count:
         return out
-    delta32 = np.float32(rays.delta_gamma[0])
-    delta = scalar(delta32)
-    m_s = mi.Float(dr.gather(mi.UInt32, rays.offset, queries.row))
-    k0 = mi.Float(last.k0)
-    # ÷Δγ as Dr.Jit compiles a division by a literal: × its float32 reciprocal
-    j_a = dr.floor((math.pi - queries.beta) * scalar(np.float32(1.0) / delta32) - band_cells)
-    g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
-    # read below (and the frame's x, by the kernel's domain): with the
-    # compression's mask, one kernel
-    dr.schedule(g_a, k0, last.k0)
-    query_x(queries.whole_frame)
-    idx = dr.compress((g_a <= k0) & (queries.beta < math.pi))
+    delta = scalar(np.float32(rays.delta_gamma[0]))
+    g_a, k0, reaches = band_queries(queries, rays, last, band_cells)
+    idx = dr.compress(reaches)
     if not dr.width(idx):
         return out
     per = band_cells + 2

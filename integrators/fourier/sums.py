@@ -177,10 +177,21 @@ def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
 
 def covered_interval(queries, cover: Coverage) -> LastInterval:
     """Each query's last light-ray interval as the coverage reads it (the
-    texel ⌊D⌋ and its covered fraction), every texel lit."""
-    k0 = cover.texel - queries.row * scalar_u32(cover.d)
-    ones = dr.full(mi.Float, 1.0, queries.count)
-    return LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+    texel ⌊D⌋ and its covered fraction), every texel lit; one per frame's
+    queries and coverage (the band and the unresolved test read the same)."""
+    def make():
+        k0 = cover.texel - queries.row * scalar_u32(cover.d)
+        ones = dr.full(mi.Float, 1.0, queries.count)
+        return LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+    return frame_memo(queries, ("covered_interval", cover), make)
+
+
+def schedule_band(model, queries, rays, A, cover: Coverage, band_cells: int) -> None:
+    """Schedule what :func:`unshadowed_band` will read of the queries alone
+    (the light model's ``schedule_band``): evaluated by the next kernel
+    over them (nothing without a band or a separated kernel)."""
+    if A is not None and band_cells:
+        model.schedule_band(queries, rays, covered_interval(queries, cover), band_cells)
 
 
 def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None,
