@@ -28,7 +28,7 @@ from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSe
                                     class_and_total_sums, near_band, near_step_weight,
                                     prefilter_rows, rectified_shadow_map, series_sum,
                                     series_unreliable, series_visibility)
-from .fourier.references import reference_rays
+from .fourier.references import reference_rays, reference_rows
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
                            row_shift, schedule_band, unresolved_by_separation,
@@ -349,7 +349,9 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)
-            smap = self.rectified_map(queries, rays, beta_b)
+            smap = self.rectified_map(queries, rays, beta_b,
+                                      rows_with=self.reference_rows_of(params, queries, L, A,
+                                                                       length))
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
             # the band's queries with the traced runs' mask (one kernel)
@@ -405,11 +407,26 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return (self.ASYMPTOTE_BAND if model.local and plan is None and self.weights != "exact"
                 else 0)
 
-    def rectified_map(self, queries, rays, beta_b):
+    def rectified_map(self, queries, rays, beta_b, rows_with=()):
         """The rectified shadow map of the blocker angles (§2.2, §4.1;
-        :func:`~integrators.fourier.rectified_map.rectified_shadow_map`): a stage
-        method, so an experiment observes the map by overriding it."""
-        return rectified_shadow_map(queries, rays, beta_b, self.depth_range)
+        :func:`~integrators.fourier.rectified_map.rectified_shadow_map`, with
+        its ``rows_with``): a stage method, so an experiment observes the map
+        by overriding it."""
+        return rectified_shadow_map(queries, rays, beta_b, self.depth_range, rows_with)
+
+    def reference_rows_of(self, params, queries, L, A, length: float) -> tuple:
+        """The rows' arrays of the reference rays the sums will make
+        (:func:`~integrators.fourier.references.reference_rows` of each
+        channel's σt, ``weights="reference_ray"``), for the map's kernel over
+        the rows; () where the sums make none."""
+        if self.weights != "reference_ray" or self.exact_visibility(params):
+            return ()
+        sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+        C = channels(L, A, sigma_t)
+        out = []
+        for s in dict.fromkeys(float(sigma_t[min(c, len(sigma_t) - 1)]) for c in range(C)):
+            out += reference_rows(queries, s, length, self.reference_rays).arrays()
+        return tuple(out)
 
     def blocker_angles(self, params, cap, queries, rays, lit=None):
         """β_b per light ray (one ray through each texel's centre): traced
