@@ -362,18 +362,15 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V, Ls, unreliable = [], [], [], None
         C = channels(L, A, sigma_t)
-        unresolved = None
         with self.stage("evaluate") as keep:
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
                                    self.band_cells(model, plan))
             keep.append(band)
             if A is not None and plan is None:
-                # samples whose U the separated kernel cannot resolve: marched
-                unresolved = unresolved_by_separation(
-                    queries, A, B, L, cover, rays if model.kernel_recurrence else None, sigma_t)
-                keep.append(unresolved)
-        if unresolved is not None:
-            self.record(unresolved=self.march_samples(unresolved))
+                # samples whose U the separated kernel cannot resolve:
+                # marched (the mask made by the ring's kernel over the queries)
+                self.march_later("unresolved", unresolved_by_separation(
+                    queries, A, B, L, cover, rays if model.kernel_recurrence else None, sigma_t))
         kernels = {}        # the channels of one σt share reference rays and kernels
         parts = [KernelParts.of(queries, rays, L, A, B, c) for c in range(C)]
         sums = self.stacked_channel_sums(params, queries, rays, smap, cover, parts, sigma_t,

@@ -195,8 +195,8 @@ def schedule_band(model, queries, rays, A, cover: Coverage, band_cells: int) -> 
 
 
 def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None,
-                             sigma_t=None) -> mi.Bool:
-    """Camera samples (a mask) with a query whose unshadowed sum U the
+                             sigma_t=None):
+    """The maker of a mask of the camera samples with a query whose unshadowed sum U the
     separated kernel does not resolve: U below
     :data:`~integrators.epipolar.last_interval.UNRESOLVED_RATIO` of the
     magnitude of its terms
@@ -210,12 +210,15 @@ def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None
     along the query
     (:func:`~integrators.epipolar.direct_sum.direct_unshadowed`, the
     tree's second test: a thick fog seen toward the sun, where the light
-    side grows as the kernel decays).  Such samples are ray-marched."""
+    side grows as the kernel decays).  Such samples are ray-marched.  The
+    sums the test reads are made here; the mask, a scatter over the
+    queries, where the maker is called (in the next kernel over the
+    queries: the epipolar template's ``march_later``)."""
     last = covered_interval(queries, cover)
     M, U = sweep_magnitude(queries, A, B, L, last)
     direct = (None if direct_rays is None else
               direct_unshadowed(queries, direct_rays, L, last, sigma_t))
-    return unresolved_samples(queries, U, M, direct)
+    return lambda: unresolved_samples(queries, U, M, direct)
 
 
 def row_shift(a, smap) -> mi.Float:
