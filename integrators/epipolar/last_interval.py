@@ -17,7 +17,7 @@ from ..core.opaque import opaque_scalar
 from .blockers import BlockerModes, leaf_visibility
 from .factor_layout import factor_layout
 from .light_rays.directional import LightRays
-from .queries import EpipolarQueries
+from .queries import EpipolarQueries, frame_memo, frame_memo_get
 
 
 # -- the last, partial light-ray interval of each query (§5 lerp, §7 modes) --
@@ -206,6 +206,32 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
 SWEEP_RESIDUE_EPS = 16 * 2.0 ** -23
 
 
+@dataclass(frozen=True)
+class SweepSums:
+    """The terms A_i L of :func:`sweep_magnitude` and their exclusive prefix
+    sums along each row: ``v``, ``cum`` at lane ((s·C + c)·N + i)·w + g of
+    row s, channel c, term i, light ray g < w − 1 (lane w − 1 of a block:
+    0, its sum the row's total).  Each block's prefix sums are formed in
+    order (Dr.Jit's block prefix sum of blocks up to 2^15 lanes, which
+    ``light_rays`` < 2^15 keeps): the first w − 1 are bit for bit those of
+    the block alone."""
+    v: mi.Float
+    cum: mi.Float
+    C: int
+    N: int
+    w: int
+
+
+#: :func:`~integrators.epipolar.queries.frame_memo` key of :class:`SweepSums`
+SWEEP_SUMS = "sweep_sums"
+
+
+def sweep_sums(queries: EpipolarQueries, A, L) -> SweepSums | None:
+    """The :class:`SweepSums` that :func:`sweep_magnitude` made for these
+    queries, A and L (None: it made none)."""
+    return frame_memo_get(queries, (SWEEP_SUMS, A, L))
+
+
 def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
     """(M, U) per query: the magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i| of
     every partial sum the sweep forms for it (the scale of its rounding)
@@ -248,6 +274,7 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
     dr.eval(v, v_abs)                               # both scans' inputs, one kernel
     cum_u = dr.block_prefix_sum(v, w)               # Σ_{γ<g} A_i L
     cum_m = dr.block_prefix_sum(v_abs, w)           # Σ_{γ<g} |A_i L|
+    frame_memo(queries, (SWEEP_SUMS, A, L), lambda: SweepSums(v, cum_u, C, N, w))
     k0, f = last.k0, last.f
     row = queries.slot if nB > 1 else queries.col
     U, M = [], []

@@ -13,7 +13,8 @@ import numpy as np
 from ..core.opaque import Divisor, scalar_u32, uints
 from ..epipolar.direct_sum import direct_unshadowed
 from ..epipolar.kernel.separation import nonzero_terms
-from ..epipolar.last_interval import LastInterval, sweep_magnitude, unresolved_samples
+from ..epipolar.last_interval import (LastInterval, sweep_magnitude, sweep_sums,
+                                      unresolved_samples)
 from ..epipolar.light_rays.directional import LightRays
 from ..epipolar.queries import frame_memo
 from .rectified_map import Coverage, query_beta_range, reference_angle
@@ -83,6 +84,9 @@ class KernelParts:
         self.terms = terms
         #: the used components' offsets in A and B (c·N + i), on the host
         self.used = []
+        #: (A, L, c): the tensors and the channel the parts were taken from
+        #: (where the sweep's sums of A L can be read, :func:`unshadowed_sums`)
+        self.source = None
 
     @staticmethod
     def of(queries, rays, L, A, B, c: int) -> "KernelParts":
@@ -91,6 +95,7 @@ class KernelParts:
         so every component (of any rank) reads with the same kernels."""
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
         CL = _channel_count(L, 2)
+        channel = c
         L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
         if A is None or not queries.count:    # the direct sum: no separated kernel
             return KernelParts(L_c, [], [])
@@ -108,6 +113,7 @@ class KernelParts:
             B_c.append(b)
         parts = KernelParts(L_c, A_c, B_c, (A.array, B.array, stride))
         parts.used = [c * N + i for i in range(N) if used[i]]
+        parts.source = (A, L, channel)
         return parts
 
     def unshadowed(self, cover: Coverage, queries) -> mi.Float:
@@ -129,6 +135,9 @@ def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
     live = [c for c, p in enumerate(parts) if p.A]
     if not live:
         return out
+    swept = _swept_sums(parts, live, cover, queries)
+    if swept is not None:
+        return swept
     A, B, stride = parts[live[0]].terms
     first, offsets, owner = {}, [], []
     for c in live:
@@ -157,6 +166,46 @@ def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
         def body(i, U, base=base):
             b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets_o, base + i))
             return i + 1, U + b * cover.read(P, stack, (base + i) * per.d)
+        _, out[c] = dr.while_loop(state=(mi.UInt32(0), out[c]),
+                                  cond=lambda i, U, n_c=n_c: i < n_c, body=body)
+    return out
+
+
+def _swept_sums(parts: list, live: list, cover: Coverage, queries) -> list | None:
+    """:func:`unshadowed_sums` from the prefix sums of A L that the
+    unresolved test's sweep made of the same A and L
+    (:func:`~integrators.epipolar.last_interval.sweep_sums`: the same terms
+    summed in the same order, no kernel of their own), each U bit for bit
+    the stack's; None where it made none."""
+    source = parts[live[0]].source
+    sums = None if source is None else sweep_sums(queries, source[0], source[1])
+    if sums is None or sums.w != cover.d + 1:
+        return None
+    A, _, _ = source
+    B, stride = parts[live[0]].terms[1], parts[live[0]].terms[2]
+    N = A.shape[3]
+    # per used component: its offset in B and its block in the sweep's layout
+    offsets, blocks = [], []
+    for c in live:
+        p = parts[c]
+        offsets += p.used
+        blocks += [p.source[2] * N + (off % N) for off in p.used]
+    offsets_o, blocks_o = uints(offsets), uints(blocks)
+    k0 = covered_interval(queries, cover).k0
+    at0 = queries.row * scalar_u32(sums.C * sums.N)
+    w = scalar_u32(sums.w)
+    slot = queries.slot * stride
+    out = [dr.zeros(mi.Float, dr.width(cover.frac)) for _ in parts]
+    first = 0
+    for c in live:
+        base, n_c = scalar_u32(first), scalar_u32(len(parts[c].used))
+        first += len(parts[c].used)
+
+        def body(i, U, base=base):
+            b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets_o, base + i))
+            at = (at0 + dr.gather(mi.UInt32, blocks_o, base + i)) * w + k0
+            return i + 1, U + b * (dr.gather(mi.Float, sums.cum, at)
+                                   + cover.frac * dr.gather(mi.Float, sums.v, at))
         _, out[c] = dr.while_loop(state=(mi.UInt32(0), out[c]),
                                   cond=lambda i, U, n_c=n_c: i < n_c, body=body)
     return out

@@ -25,7 +25,7 @@ import numpy as np
 from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains, lowest_light_side
 from ..light_rays.directional import LIGHT_SIDE_RANGE
-from ..queries import frame_memo
+from ..queries import frame_memo, frame_memo_get
 from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms, term_table
 
@@ -185,7 +185,7 @@ def nonzero_terms(queries, B) -> mi.UInt32 | None:
     (:func:`separate_kernel`; a host copy reads it without a kernel of its
     own); None for a B that :func:`separate_kernel` did not make for these
     queries."""
-    return frame_memo(queries, (NONZERO_TERMS, B), lambda: None)
+    return frame_memo_get(queries, (NONZERO_TERMS, B))
 
 
 #: re-separations :func:`checked_tolerances` may make
