@@ -130,7 +130,9 @@ def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
     its components in a loop (``queries``: theirs) -- two kernels, the same
     for any rank and channel count; the sums of adding one component after
     another (a stacked prefix sum sums each row's block as a lone one
-    does), each U bit for bit its channel's alone."""
+    does), each U bit for bit its channel's alone.  Where the unresolved
+    test's sweep summed the same A and L, its prefix sums are read instead
+    (:func:`_swept_sums`: no kernel of their own, the same U)."""
     out = [dr.zeros(mi.Float, dr.width(cover.frac)) for _ in parts]
     live = [c for c, p in enumerate(parts) if p.A]
     if not live:
@@ -177,11 +179,14 @@ def _swept_sums(parts: list, live: list, cover: Coverage, queries) -> list | Non
     (:func:`~integrators.epipolar.last_interval.sweep_sums`: the same terms
     summed in the same order, no kernel of their own), each U bit for bit
     the stack's; None where it made none."""
-    source = parts[live[0]].source
-    sums = None if source is None else sweep_sums(queries, source[0], source[1])
+    sources = [parts[c].source for c in live]
+    if any(s is None or s[0] is not sources[0][0] or s[1] is not sources[0][1]
+           for s in sources):
+        return None
+    A, L, _ = sources[0]
+    sums = sweep_sums(queries, A, L)
     if sums is None or sums.w != cover.d + 1:
         return None
-    A, _, _ = source
     B, stride = parts[live[0]].terms[1], parts[live[0]].terms[2]
     N = A.shape[3]
     # per used component: its offset in B and its block in the sweep's layout

@@ -261,8 +261,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         with ``slice_interpolation`` (a nearest-slice query has no second
         answer); ``stats["remarched"]`` counts the samples.  The samples the
         method asked to march (``RenderRecord.march``, e.g. the tree's
-        unresolved sums) are marched in the same pass.  A narrow spot
-        light's few lit samples are marched too
+        unresolved sums; the masks of :meth:`march_later`, made by the
+        disagreement test's kernel) are marched in the same pass.  A
+        narrow spot light's few lit samples are marched too
         (:func:`~integrators.epipolar.light_rays.local.cone_samples`, chosen on
         the whole frame so that a partial render marches what the full one
         does)."""
