@@ -362,6 +362,7 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V, Ls, unreliable = [], [], [], None
         C = channels(L, A, sigma_t)
+        swept = None        # the unresolved test's sums of A L, read by U too
         with self.stage("evaluate") as keep:
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
                                    self.band_cells(model, plan))
@@ -369,10 +370,11 @@ class FourierFilterIntegrator(EpipolarIntegrator):
             if A is not None and plan is None:
                 # samples whose U the separated kernel cannot resolve:
                 # marched (the mask made by the ring's kernel over the queries)
-                self.march_later("unresolved", unresolved_by_separation(
-                    queries, A, B, L, cover, rays if model.kernel_recurrence else None, sigma_t))
+                unresolved, swept = unresolved_by_separation(
+                    queries, A, B, L, cover, rays if model.kernel_recurrence else None, sigma_t)
+                self.march_later("unresolved", unresolved)
         kernels = {}        # the channels of one σt share reference rays and kernels
-        parts = [KernelParts.of(queries, rays, L, A, B, c) for c in range(C)]
+        parts = [KernelParts.of(queries, rays, L, A, B, c, swept) for c in range(C)]
         sums = self.stacked_channel_sums(params, queries, rays, smap, cover, parts, sigma_t,
                                          length, beta_b, tail, kernels)
         if sums is not None:

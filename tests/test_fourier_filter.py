@@ -823,11 +823,11 @@ def test_the_unshadowed_sums_read_from_the_sweep_equal_their_own_stack(name, mon
 
     scene = c.load(c.scene_file(name), c.resolution(48, 36))
     read = []
-    swept = sums.sweep_sums
-    monkeypatch.setattr(sums, "sweep_sums", lambda *a: read.append(swept(*a)) or read[-1])
+    swept = sums._swept_sums
+    monkeypatch.setattr(sums, "_swept_sums", lambda *a: read.append(swept(*a)) or read[-1])
     image = np.array(mi.render(scene, integrator=mi.load_dict({"type": "fourier_filter"}),
                                spp=1))
     assert read and all(r is not None for r in read)
-    monkeypatch.setattr(sums, "sweep_sums", lambda *a: None)
+    monkeypatch.setattr(sums, "_swept_sums", lambda *a: None)
     own = np.array(mi.render(scene, integrator=mi.load_dict({"type": "fourier_filter"}), spp=1))
     assert np.array_equal(image, own, equal_nan=True)

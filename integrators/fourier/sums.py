@@ -13,7 +13,7 @@ import numpy as np
 from ..core.opaque import Divisor, scalar_u32, uints
 from ..epipolar.direct_sum import direct_unshadowed
 from ..epipolar.kernel.separation import nonzero_terms
-from ..epipolar.last_interval import (LastInterval, sweep_magnitude, sweep_sums,
+from ..epipolar.last_interval import (LastInterval, SweepSums, sweep_magnitude, sweep_sums,
                                       unresolved_samples)
 from ..epipolar.light_rays.directional import LightRays
 from ..epipolar.queries import frame_memo
@@ -84,15 +84,19 @@ class KernelParts:
         self.terms = terms
         #: the used components' offsets in A and B (c·N + i), on the host
         self.used = []
-        #: (A, L, c): the tensors and the channel the parts were taken from
-        #: (where the sweep's sums of A L can be read, :func:`unshadowed_sums`)
-        self.source = None
+        #: the channel the parts were taken from and the sweep's sums of the
+        #: same A and L (:func:`~integrators.epipolar.last_interval.sweep_sums`;
+        #: None: none), which :func:`unshadowed_sums` reads where given
+        self.channel = 0
+        self.swept = None
 
     @staticmethod
-    def of(queries, rays, L, A, B, c: int) -> "KernelParts":
+    def of(queries, rays, L, A, B, c: int, swept: SweepSums | None = None) -> "KernelParts":
         """Channel ``c`` of L and of A, B (a grey one serves every channel);
         the rank's stride and the component's offset are kernel parameters,
-        so every component (of any rank) reads with the same kernels."""
+        so every component (of any rank) reads with the same kernels;
+        ``swept``: the sweep's sums of these A and L, if made
+        (:func:`unresolved_by_separation`)."""
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
         CL = _channel_count(L, 2)
         channel = c
@@ -113,7 +117,7 @@ class KernelParts:
             B_c.append(b)
         parts = KernelParts(L_c, A_c, B_c, (A.array, B.array, stride))
         parts.used = [c * N + i for i in range(N) if used[i]]
-        parts.source = (A, L, channel)
+        parts.channel, parts.swept = channel, swept
         return parts
 
     def unshadowed(self, cover: Coverage, queries) -> mi.Float:
@@ -175,26 +179,21 @@ def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
 
 def _swept_sums(parts: list, live: list, cover: Coverage, queries) -> list | None:
     """:func:`unshadowed_sums` from the prefix sums of A L that the
-    unresolved test's sweep made of the same A and L
-    (:func:`~integrators.epipolar.last_interval.sweep_sums`: the same terms
-    summed in the same order, no kernel of their own), each U bit for bit
-    the stack's; None where it made none."""
-    sources = [parts[c].source for c in live]
-    if any(s is None or s[0] is not sources[0][0] or s[1] is not sources[0][1]
-           for s in sources):
-        return None
-    A, L, _ = sources[0]
-    sums = sweep_sums(queries, A, L)
-    if sums is None or sums.w != cover.d + 1:
+    unresolved test's sweep made of the same A and L (the parts'
+    ``swept``, :func:`~integrators.epipolar.last_interval.sweep_sums`: the
+    same terms summed in the same order, no kernel of their own), each U
+    bit for bit the stack's; None where the parts have none."""
+    sums = parts[live[0]].swept
+    if sums is None or sums.w != cover.d + 1 or any(parts[c].swept is not sums for c in live):
         return None
     B, stride = parts[live[0]].terms[1], parts[live[0]].terms[2]
-    N = A.shape[3]
+    N = sums.N
     # per used component: its offset in B and its block in the sweep's layout
     offsets, blocks = [], []
     for c in live:
         p = parts[c]
         offsets += p.used
-        blocks += [p.source[2] * N + (off % N) for off in p.used]
+        blocks += [p.channel * N + (off % N) for off in p.used]
     offsets_o, blocks_o = uints(offsets), uints(blocks)
     k0 = covered_interval(queries, cover).k0
     at0 = queries.row * scalar_u32(sums.C * sums.N)
@@ -249,8 +248,8 @@ def schedule_band(model, queries, rays, A, cover: Coverage, band_cells: int) -> 
 
 
 def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None,
-                             sigma_t=None):
-    """The maker of a mask of the camera samples with a query whose unshadowed sum U the
+                             sigma_t=None) -> tuple:
+    """(maker, sums): the maker of a mask of the camera samples with a query whose unshadowed sum U the
     separated kernel does not resolve: U below
     :data:`~integrators.epipolar.last_interval.UNRESOLVED_RATIO` of the
     magnitude of its terms
@@ -265,14 +264,17 @@ def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None
     (:func:`~integrators.epipolar.direct_sum.direct_unshadowed`, the
     tree's second test: a thick fog seen toward the sun, where the light
     side grows as the kernel decays).  Such samples are ray-marched.  The
-    sums the test reads are made here; the mask, a scatter over the
+    sums the test reads are made here (``sums``: the sweep's,
+    :func:`~integrators.epipolar.last_interval.sweep_sums`, which
+    :func:`unshadowed_sums` can read); the mask, a scatter over the
     queries, where the maker is called (in the next kernel over the
     queries: the epipolar template's ``march_later``)."""
     last = covered_interval(queries, cover)
-    M, U = sweep_magnitude(queries, A, B, L, last)
+    sums = sweep_sums(queries, A, B, L)
+    M, U = sweep_magnitude(queries, A, B, L, last, sums)
     direct = (None if direct_rays is None else
               direct_unshadowed(queries, direct_rays, L, last, sigma_t))
-    return lambda: unresolved_samples(queries, U, M, direct)
+    return (lambda: unresolved_samples(queries, U, M, direct)), sums
 
 
 def row_shift(a, smap) -> mi.Float:
