@@ -90,7 +90,9 @@ def near_nodes(params, cap, queries: EpipolarQueries) -> mi.Bool:
         mask = (queries.t_near > NEAR_RATIO * dr.norm(q)) & (b > 1e-4 * dr.norm(q))
         dr.schedule(mask)
         return mask
-    return frame_memo(queries, ("near_nodes", params, cap), make)
+    # keyed by the frame's parameters alone (its capture is theirs): a kept
+    # frame state holds no capture through it
+    return frame_memo(queries, ("near_nodes", params), make)
 
 
 def reaches_asymptote_band(params, queries: EpipolarQueries, rays: LocalLightRays,
