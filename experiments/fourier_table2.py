@@ -103,8 +103,8 @@ def _register_probe():
             super().read_method_properties(props)
             self.map_log = []
 
-        def rectified_map(self, queries, rays, beta_b):
-            smap = super().rectified_map(queries, rays, beta_b)
+        def rectified_map(self, queries, rays, beta_b, **kw):
+            smap = super().rectified_map(queries, rays, beta_b, **kw)
             self.map_log.append({"rows": int(smap.n), "texels": int(smap.d),
                                  "filtered_rows": int(smap.n_filtered)})
             return smap

@@ -28,10 +28,11 @@ from .fourier.rectified_map import (DEPTH_RANGES, REFERENCES, Coverage, FilterSe
                                     class_and_total_sums, near_band, near_step_weight,
                                     prefilter_rows, rectified_shadow_map, series_sum,
                                     series_unreliable, series_visibility)
-from .fourier.references import reference_rays
+from .fourier.references import reference_rays, reference_rows
 from .fourier.rows import ProjectivePlan, auto_texels, projective_plan, row_spacing, texel_size
 from .fourier.sums import (KernelParts, RectifiedSums, channels, near_visibility, reference_kernel,
-                           row_shift, unresolved_by_separation, unshadowed_band, unshadowed_sums)
+                           row_shift, schedule_band, unresolved_by_separation,
+                           unshadowed_band, unshadowed_sums)
 from .fourier.tail import tail_visibility
 from .partial.row_subset import frame_choices, take_light_rays, take_rows
 from .template.epipolar import EpipolarIntegrator
@@ -319,8 +320,6 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                           if exact and not model.local else {})
             L, colour, lit = model.light_factor(params, whole, rays, **side_range)
         length = model.light_length(params, whole, cap)
-        if plan is None:
-            self.record(frame_choices=frame_choices(whole, rays) + (("length", length),))
         frame_rays = rays
         rays, L, lit = take_light_rays(queries, rays), take_rows(queries, L), \
             take_rows(queries, lit)
@@ -338,34 +337,44 @@ class FourierFilterIntegrator(EpipolarIntegrator):
                                               self.svd_tolerance, frame_rays=frame_rays,
                                               band_cells=self.band_cells(model, plan))
             keep.extend([] if A is None else [A, B])
+        if plan is None:
+            # after the separation, whose reads of the queries' domain
+            # evaluated the x it reads (no kernel of its own)
+            self.record(frame_choices=frame_choices(whole, frame_rays) + (("length", length),))
         with self.stage("rectify"):
-            query_beta_range(queries)       # with the coverage's kernel
+            # with the coverage's kernel: the queries' β range and what the
+            # query terms (unrectify stage) read of the queries alone
+            query_beta_range(queries)
+            model.schedule_query_terms(params, cap, queries)
             cover = Coverage.of(queries, rays)
         with self.stage("blockers"):
             beta_b = self.blocker_angles(params, cap, queries, rays, lit)
-            smap = self.rectified_map(queries, rays, beta_b)
+            smap = self.rectified_map(queries, rays, beta_b,
+                                      rows_with=self.reference_rows_of(params, queries, L, A,
+                                                                       length))
             if self.regions > 1:
                 region_length(rays.d, self.regions)      # ValueError if a region is empty
+            # the band's queries with the traced runs' mask (one kernel)
+            schedule_band(model, queries, rays, A, cover, self.band_cells(model, plan))
             tail = (tail_visibility(params, cap, queries, rays, beta_b, cover)
                     if self.trace_ends else None)
             self.record(tail_traced=0 if tail is None else tail.traced)
         sigma_t = np.asarray(params.medium.sigma_t, np.float64)
         U, V, Ls, unreliable = [], [], [], None
         C = channels(L, A, sigma_t)
-        unresolved = None
+        swept = None        # the unresolved test's sums of A L, read by U too
         with self.stage("evaluate") as keep:
             band = unshadowed_band(model, params, queries, rays, A, B, L, cover,
                                    self.band_cells(model, plan))
             keep.append(band)
             if A is not None and plan is None:
-                # samples whose U the separated kernel cannot resolve: marched
-                unresolved = unresolved_by_separation(
+                # samples whose U the separated kernel cannot resolve:
+                # marched (the mask made by the ring's kernel over the queries)
+                unresolved, swept = unresolved_by_separation(
                     queries, A, B, L, cover, rays if model.kernel_recurrence else None, sigma_t)
-                keep.append(unresolved)
-        if unresolved is not None:
-            self.record(unresolved=self.march_samples(unresolved))
+                self.march_later("unresolved", unresolved)
         kernels = {}        # the channels of one σt share reference rays and kernels
-        parts = [KernelParts.of(queries, rays, L, A, B, c) for c in range(C)]
+        parts = [KernelParts.of(queries, rays, L, A, B, c, swept) for c in range(C)]
         sums = self.stacked_channel_sums(params, queries, rays, smap, cover, parts, sigma_t,
                                          length, beta_b, tail, kernels)
         if sums is not None:
@@ -397,11 +406,26 @@ class FourierFilterIntegrator(EpipolarIntegrator):
         return (self.ASYMPTOTE_BAND if model.local and plan is None and self.weights != "exact"
                 else 0)
 
-    def rectified_map(self, queries, rays, beta_b):
+    def rectified_map(self, queries, rays, beta_b, rows_with=()):
         """The rectified shadow map of the blocker angles (§2.2, §4.1;
-        :func:`~integrators.fourier.rectified_map.rectified_shadow_map`): a stage
-        method, so an experiment observes the map by overriding it."""
-        return rectified_shadow_map(queries, rays, beta_b, self.depth_range)
+        :func:`~integrators.fourier.rectified_map.rectified_shadow_map`, with
+        its ``rows_with``): a stage method, so an experiment observes the map
+        by overriding it."""
+        return rectified_shadow_map(queries, rays, beta_b, self.depth_range, rows_with)
+
+    def reference_rows_of(self, params, queries, L, A, length: float) -> tuple:
+        """The rows' arrays of the reference rays the sums will make
+        (:func:`~integrators.fourier.references.reference_rows` of each
+        channel's σt, ``weights="reference_ray"``), for the map's kernel over
+        the rows; () where the sums make none."""
+        if self.weights != "reference_ray" or self.exact_visibility(params):
+            return ()
+        sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+        C = channels(L, A, sigma_t)
+        out = []
+        for s in dict.fromkeys(float(sigma_t[min(c, len(sigma_t) - 1)]) for c in range(C)):
+            out += reference_rows(queries, s, length, self.reference_rays).arrays()
+        return tuple(out)
 
     def blocker_angles(self, params, cap, queries, rays, lit=None):
         """β_b per light ray (one ray through each texel's centre): traced

@@ -810,3 +810,24 @@ def test_a_thick_mediums_unresolved_unshadowed_sums_are_marched():
         scene, spp=1)
     assert res.stats["unresolved"] > 0
     assert scale_free_relmse(np.array(res["full"]), ref) < 2e-3
+
+
+@pytest.mark.parametrize("name", ["point_fog", "spot_room"])
+def test_the_unshadowed_sums_read_from_the_sweep_equal_their_own_stack(name, monkeypatch):
+    """The unshadowed sums U read the prefix sums of A·L that the
+    unresolved test's sweep made (no kernel of their own): the image is
+    bit for bit the one their own stacked prefix sums give (a grey and a
+    textured, three-channel light)."""
+    from experiments import common as c
+    from integrators.fourier import sums
+
+    scene = c.load(c.scene_file(name), c.resolution(48, 36))
+    read = []
+    swept = sums._swept_sums
+    monkeypatch.setattr(sums, "_swept_sums", lambda *a: read.append(swept(*a)) or read[-1])
+    image = np.array(mi.render(scene, integrator=mi.load_dict({"type": "fourier_filter"}),
+                               spp=1))
+    assert read and all(r is not None for r in read)
+    monkeypatch.setattr(sums, "_swept_sums", lambda *a: None)
+    own = np.array(mi.render(scene, integrator=mi.load_dict({"type": "fourier_filter"}), spp=1))
+    assert np.array_equal(image, own, equal_nan=True)

@@ -206,33 +206,32 @@ def last_interval_correction(queries: EpipolarQueries, A, B, L,
 SWEEP_RESIDUE_EPS = 16 * 2.0 ** -23
 
 
-def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
-    """(M, U) per query: the magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i| of
-    every partial sum the sweep forms for it (the scale of its rounding)
-    and the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the sweep without
-    blockers, for :func:`unresolved_samples`), both as the sweep's closed
-    form takes the last, partial light ray (cumulative sums lerped at D,
-    :mod:`~integrators.tree.partial_sum_tree`; each row's formed in parallel by
-    ``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
-    None, (n|1, d) or (n|1, d, C); ``last``: each query's last leaf and
-    its covered fraction (:func:`last_leaf`, via
-    :func:`last_interval_visibility`).
+@dataclass(frozen=True)
+class SweepSums:
+    """The terms A_i L of the sweep without blockers and their exclusive
+    prefix sums along each row (:func:`sweep_sums`): ``v``, ``cum`` (of
+    ``|v|``: ``cum_abs``) at lane ((s·C + c)·N + i)·w + g of row s, channel
+    c, term i, light ray g < w − 1 (lane w − 1 of a block: 0, its sum the
+    row's total).  Each block's prefix sums are formed in order (Dr.Jit's
+    block prefix sum of blocks up to 2^15 lanes, which ``light_rays``
+    < 2^15 keeps): the first w − 1 are bit for bit those of the block
+    alone."""
+    v: mi.Float
+    cum: mi.Float
+    cum_abs: mi.Float
+    C: int
+    N: int
+    w: int
 
-    The Fenwick tree removes a shadowed leaf by subtracting w·A·L from node
-    sums that added A·L before; a view ray shadowed all along is left with
-    the rounding of those cancellations, up to ~ε·M (a prefix sum to D
-    reads nodes that hold leaves before D alone; 1e-9…1e-7 of the row's
-    light on the terrain), where the exact sum is 0.  Invisible, but HDR
-    metrics on mostly black references amplify it (FLIP 0.39 on terrain,
-    0.92 on beam); so do the cancellations of the near-plane and
-    last-interval corrections.  :func:`~integrators.epipolar.query_terms.assemble_queries`
-    returns 0 for a
-    query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
-    of its parts -- below their own rounding error.  (Counted over the
-    whole row, the bound flushed lit queries that end early in a row whose
-    far light rays carry e^{20} more light: random stress seed 31.)"""
+
+def sweep_sums(queries: EpipolarQueries, A, B, L) -> SweepSums:
+    """The :class:`SweepSums` of A (n|1, d, [C,] N) and L (None, (n|1, d)
+    or (n|1, d, C)), C the most channels of A, B and L: the terms in one
+    kernel, their prefix sums by ``dr.block_prefix_sum``
+    (:func:`sweep_magnitude` reads them; so may a caller that needs the
+    same sums in another order of reading)."""
     a, nA, d, CA, N = factor_arrays(A, True)
-    b, nB, _, CB, _ = factor_arrays(B, True)
+    CB = factor_arrays(B, True)[3]
     C = max(CA, CB, 1 if L is None else factor_arrays(L, False)[3])
     n, w = queries.n, d + 1
     # lanes (s, c, i, g), g ∈ [0, d] innermost: one block of d + 1 per (row, channel, term)
@@ -248,6 +247,40 @@ def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval"):
     dr.eval(v, v_abs)                               # both scans' inputs, one kernel
     cum_u = dr.block_prefix_sum(v, w)               # Σ_{γ<g} A_i L
     cum_m = dr.block_prefix_sum(v_abs, w)           # Σ_{γ<g} |A_i L|
+    return SweepSums(v, cum_u, cum_m, C, N, w)
+
+
+def sweep_magnitude(queries: EpipolarQueries, A, B, L, last: "LastInterval",
+                    sums: SweepSums | None = None):
+    """(M, U) per query: the magnitude M = Σ_{γ<D} Σ_i |A_i L| |B_i| of
+    every partial sum the sweep forms for it (the scale of its rounding)
+    and the unshadowed sum U = Σ_{γ<D} L Σ_i A_i B_i (the sweep without
+    blockers, for :func:`unresolved_samples`), both as the sweep's closed
+    form takes the last, partial light ray (cumulative sums lerped at D,
+    :mod:`~integrators.tree.partial_sum_tree`; each row's formed in parallel by
+    ``dr.block_prefix_sum``).  A (n|1, d, [C,] N), B (n|1, r, [C,] N), L
+    None, (n|1, d) or (n|1, d, C); ``last``: each query's last leaf and
+    its covered fraction (:func:`last_leaf`, via
+    :func:`last_interval_visibility`); ``sums``: their
+    :func:`sweep_sums`, made here where None.
+
+    The Fenwick tree removes a shadowed leaf by subtracting w·A·L from node
+    sums that added A·L before; a view ray shadowed all along is left with
+    the rounding of those cancellations, up to ~ε·M (a prefix sum to D
+    reads nodes that hold leaves before D alone; 1e-9…1e-7 of the row's
+    light on the terrain), where the exact sum is 0.  Invisible, but HDR
+    metrics on mostly black references amplify it (FLIP 0.39 on terrain,
+    0.92 on beam); so do the cancellations of the near-plane and
+    last-interval corrections.  :func:`~integrators.epipolar.query_terms.assemble_queries`
+    returns 0 for a
+    query whose result is within ``SWEEP_RESIDUE_EPS`` times the magnitude
+    of its parts -- below their own rounding error.  (Counted over the
+    whole row, the bound flushed lit queries that end early in a row whose
+    far light rays carry e^{20} more light: random stress seed 31.)"""
+    sums = sweep_sums(queries, A, B, L) if sums is None else sums
+    b, nB, _, CB, _ = factor_arrays(B, True)
+    C, N, w = sums.C, sums.N, sums.w
+    cum_u, cum_m = sums.cum, sums.cum_abs
     k0, f = last.k0, last.f
     row = queries.slot if nB > 1 else queries.col
     U, M = [], []

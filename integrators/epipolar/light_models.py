@@ -65,7 +65,8 @@ from .light_rays.directional import LIGHT_SIDE_RANGE, light_ray_grid
 from .light_rays.local import local_light_ray_grid
 from .local_blockers import radial_blocker_beta, radial_map_point, trace_local_blocker_angles
 from .local_light_factor import light_ray_factor
-from .local_query_terms import asymptote_band_correction, local_query_terms, reaches_asymptote_band
+from .local_query_terms import (asymptote_band_correction, band_queries, local_query_terms,
+                                near_nodes, reaches_asymptote_band)
 from .query_terms import directional_query_terms
 
 
@@ -143,6 +144,10 @@ class LightModel:
         of a banded kernel (0: no band)."""
         return 0.0
 
+    def schedule_band(self, queries, rays, last, band_cells: int) -> None:
+        """Schedule what :meth:`band_correction` will read of the queries
+        alone (evaluated by the next kernel over them; nothing by default)."""
+
     def band_for(self, params, queries, rays, band_cells: int) -> int:
         """The asymptote band a render needs: ``band_cells`` where some
         query reaches it, else 0 (only the local light has one)."""
@@ -151,6 +156,10 @@ class LightModel:
     def query_terms(self, params, cap, queries, rays, colour, V_near):
         """Per-query factors of the integral."""
         raise NotImplementedError
+
+    def schedule_query_terms(self, params, cap, queries) -> None:
+        """Schedule what :meth:`query_terms` will read of the queries alone
+        (evaluated by the next kernel over them; nothing by default)."""
 
     def ray_kernel(self, params, queries, rays, sigma_t: float):
         """K of light ray t at tan(β/2), as a callable ``(t, tan)`` (the
@@ -228,6 +237,13 @@ class Local(LightModel):
 
     def band_for(self, params, queries, rays, band_cells):
         return band_cells if reaches_asymptote_band(params, queries, rays, band_cells) else 0
+
+    def schedule_band(self, queries, rays, last, band_cells):
+        if band_cells:
+            band_queries(queries, rays, last, band_cells)
+
+    def schedule_query_terms(self, params, cap, queries):
+        near_nodes(params, cap, queries)
 
 
 MODELS = (Directional(), Local())

@@ -71,6 +71,11 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     depth = scalar(frame.light_distance) - rays.r_in
     if _channels(params) == 1:
         colour = _light_colour(params, frame)
+        if dr.width(idx):       # written by the lit flags' kernel (one lane of it)
+            colour_at = dr.zeros(mi.Color3f, 1)
+            dr.scatter(colour_at, colour, mi.UInt32(0),
+                       active=dr.arange(mi.UInt32, dr.width(idx)) == 0)
+            colour = colour_at
         dr.eval(colour)
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))

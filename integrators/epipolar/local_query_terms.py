@@ -16,7 +16,7 @@ from .blockers import mode_visibility
 from .kernel.local import Angles, LocalKernel, interval_bounds, lit_domain, query_x, query_x_max
 from .last_interval import factor_arrays
 from .light_rays.local import LocalLightRays
-from .queries import EpipolarQueries
+from .queries import EpipolarQueries, frame_memo
 from .query_terms import QueryTerms
 
 
@@ -60,7 +60,7 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
     # distance (there the midpoint's error is below ~1e-4 of the segment)
     t0 = dr.dot(q, omega)
     b = dr.norm(q - omega * t0)
-    idx = dr.compress((t_near > NEAR_RATIO * dr.norm(q)) & (b > 1e-4 * dr.norm(q)))
+    idx = dr.compress(near_nodes(params, cap, queries))
     if not dr.width(idx):
         return value
     omega = dr.gather(mi.Vector3f, omega, idx)
@@ -73,6 +73,26 @@ def near_segment(params, cap, queries: EpipolarQueries) -> mi.Color3f:
         total += term * dr.square(dist) * dr.exp(-sigma_t * t) * w
     dr.scatter(value, total * ((th_b - th_a) / b), idx)
     return value
+
+
+def near_nodes(params, cap, queries: EpipolarQueries) -> mi.Bool:
+    """(Q,) the queries whose near segment :func:`near_segment` integrates
+    with its nodes (t_near > NEAR_RATIO·L, the ray not through the light),
+    made once per frame's queries and scheduled: evaluated by the next
+    kernel over the queries (a method asks for it before one, e.g. its
+    coverage's), or where :func:`near_segment` compresses it."""
+    def make():
+        omega = dr.gather(mi.Vector3f, cap.omega, queries.sample)
+        o = mi.Point3f(point(params.camera.origin))
+        q = mi.Vector3f(point(params.light.position)) - mi.Vector3f(o)
+        t0 = dr.dot(q, omega)
+        b = dr.norm(q - omega * t0)
+        mask = (queries.t_near > NEAR_RATIO * dr.norm(q)) & (b > 1e-4 * dr.norm(q))
+        dr.schedule(mask)
+        return mask
+    # keyed by the frame's parameters alone (its capture is theirs): a kept
+    # frame state holds no capture through it
+    return frame_memo(queries, ("near_nodes", params), make)
 
 
 def reaches_asymptote_band(params, queries: EpipolarQueries, rays: LocalLightRays,
@@ -97,6 +117,29 @@ def reaches_asymptote_band(params, queries: EpipolarQueries, rays: LocalLightRay
     return bool(dr.any(near)[0])
 
 
+def band_queries(queries: EpipolarQueries, rays: LocalLightRays, last, band_cells: int):
+    """(g_a, k0, reaches) per query: the first cell of its asymptote band
+    (row-local, at least k0 − band_cells − 1), its last covered cell
+    ``last.k0`` (both as floats) and whether it reaches the band
+    (:func:`asymptote_band_correction`), made once per frame's queries and
+    ``last`` and scheduled, with the frame's x (read by the kernel's
+    domain): evaluated by the next kernel over the queries (a method asks
+    for them before one, e.g. its traced runs' mask), or where
+    :func:`asymptote_band_correction` compresses the mask."""
+    def make():
+        delta32 = np.float32(rays.delta_gamma[0])
+        m_s = mi.Float(dr.gather(mi.UInt32, rays.offset, queries.row))
+        k0 = mi.Float(last.k0)
+        # ÷Δγ as Dr.Jit compiles a division by a literal: × its float32 reciprocal
+        j_a = dr.floor((math.pi - queries.beta) * scalar(np.float32(1.0) / delta32) - band_cells)
+        g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
+        reaches = (g_a <= k0) & (queries.beta < math.pi)
+        dr.schedule(g_a, k0, last.k0, reaches)
+        query_x(queries.whole_frame)
+        return g_a, k0, reaches
+    return frame_memo(queries, ("band_queries", rays, last, band_cells), make)
+
+
 def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLightRays, A, B, L,
                                modes, last, band_cells: int) -> mi.Color3f:
     """Per query, the change of the sweep's sum when its light-ray cells in
@@ -117,18 +160,9 @@ def asymptote_band_correction(params, queries: EpipolarQueries, rays: LocalLight
     out = dr.zeros(mi.Color3f, queries.count)
     if not band_cells or not queries.count:
         return out
-    delta32 = np.float32(rays.delta_gamma[0])
-    delta = scalar(delta32)
-    m_s = mi.Float(dr.gather(mi.UInt32, rays.offset, queries.row))
-    k0 = mi.Float(last.k0)
-    # ÷Δγ as Dr.Jit compiles a division by a literal: × its float32 reciprocal
-    j_a = dr.floor((math.pi - queries.beta) * scalar(np.float32(1.0) / delta32) - band_cells)
-    g_a = dr.maximum(dr.maximum(j_a - m_s, k0 - (band_cells + 1)), 0.0)
-    # read below (and the frame's x, by the kernel's domain): with the
-    # compression's mask, one kernel
-    dr.schedule(g_a, k0, last.k0)
-    query_x(queries.whole_frame)
-    idx = dr.compress((g_a <= k0) & (queries.beta < math.pi))
+    delta = scalar(np.float32(rays.delta_gamma[0]))
+    g_a, k0, reaches = band_queries(queries, rays, last, band_cells)
+    idx = dr.compress(reaches)
     if not dr.width(idx):
         return out
     per = band_cells + 2

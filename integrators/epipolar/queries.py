@@ -290,6 +290,17 @@ def frame_memo(queries, key: tuple, make):
     return value
 
 
+def frame_memo_get(queries, key: tuple):
+    """What :func:`frame_memo` made of ``queries`` for ``key``, or None where
+    it made nothing (nothing is made here)."""
+    memo = _MEMO.get(queries, {})
+    plain = (str, int, float, bool)
+    hit = memo.get(tuple(k if isinstance(k, plain) else id(k) for k in key))
+    if hit is not None and all(a is b or isinstance(a, plain) for a, b in zip(hit[0], key)):
+        return hit[1]
+    return None
+
+
 def beta_map(queries) -> mi.Float:
     """``queries.padded(queries.beta, PAD_BETA)``, made once per queries
     object (every search of a frame reads the same map) and scheduled: it

@@ -196,10 +196,13 @@ def _texel_rows(n: int, d: int) -> mi.UInt32:
     return Divisor(d).div(dr.arange(mi.UInt32, n * d))
 
 
-def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> RectifiedShadowMap:
+def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice",
+                         rows_with=()) -> RectifiedShadowMap:
     """The rectified shadow map of the rows (module doc) from the blocker
     angles ``beta_b`` (n·d, one per light ray, π = unblocked) of
-    :func:`~integrators.epipolar.blockers.trace_blocker_angles`."""
+    :func:`~integrators.epipolar.blockers.trace_blocker_angles`;
+    ``rows_with``: unevaluated arrays over the rows (n,) that a later
+    stage reads, evaluated with the map's filtered rows (one kernel)."""
     if depth_range not in DEPTH_RANGES:
         raise ValueError(f"depth_range '{depth_range}' is not one of {list(DEPTH_RANGES)}.")
     n, d = queries.n, rays.d
@@ -230,7 +233,7 @@ def rectified_shadow_map(queries, rays, beta_b, depth_range: str = "slice") -> R
     dr.eval(count, z_min, z, series, lit)
     filtered = count > 0
     ones = dr.select(filtered, mi.UInt32(1), mi.UInt32(0))
-    dr.schedule(ones)
+    dr.schedule(ones, *rows_with)
     rows = dr.compress(filtered)
     frow = dr.prefix_sum(ones)   # exclusive
     smap = RectifiedShadowMap(n, d, z, series, lit, z_r, filtered, rows, frow, z_min)

@@ -48,6 +48,7 @@ import numpy as np
 
 from ..core.opaque import Divisor, opaque_scalar, scalar, scalar_u32
 from ..epipolar.light_models import light_model
+from ..epipolar.queries import frame_memo
 from .rectified_map import query_beta_range
 
 
@@ -96,6 +97,54 @@ class ReferenceRays:
     beta_at: object = None
 
 
+@dataclass(eq=False)
+class ReferenceRows:
+    """The rows' arrays of :func:`reference_rays` (n,): the reference rays
+    ``counts``, the intervals ``last`` between them (≥ 1), the row's s
+    range from ``s_lo`` over ``span`` and its smallest β ``lo``; the
+    queries' s ``s_q`` (Q,); whether the kernel ``decays`` (σt ℓ > 0)."""
+    decays: bool
+    counts: mi.UInt32
+    last: mi.Float
+    s_lo: mi.Float
+    span: mi.Float
+    lo: mi.Float
+    s_q: mi.Float
+
+    def arrays(self) -> tuple:
+        """(counts, last, s_lo, span, lo): what a kernel over the rows makes."""
+        return self.counts, self.last, self.s_lo, self.span, self.lo
+
+
+def reference_rows(queries, sigma_t: float, length: float, count: int = 0,
+                   spacing: float = SPACING) -> ReferenceRows:
+    """The rows' arrays of :func:`reference_rays` (same arguments), made
+    once per frame's queries and arguments and left unevaluated: a caller
+    evaluates them with a kernel over the rows of its own (the rectified
+    map's filtered rows' mask, :func:`~integrators.fourier.rectified_map.rectified_shadow_map`'s
+    ``rows_with``), else :func:`reference_rays` with its read of the most
+    rays."""
+    def make():
+        lo, hi = query_beta_range(queries)
+        rate = float(sigma_t) * float(length)
+        decays = rate > 1e-6
+        if decays:
+            s_lo, s_hi = (decay_coordinate(b, sigma_t, length) for b in (lo, hi))
+            s_q = decay_coordinate(queries.beta, sigma_t, length)
+        else:
+            s_lo, s_hi, s_q = lo, hi, queries.beta
+        span = dr.select(dr.isfinite(s_hi - s_lo), s_hi - s_lo, 0.0)
+        if count == 0:
+            counts = auto_reference_rays(span if decays else dr.zeros(mi.Float, dr.width(span)),
+                                         spacing)
+        else:
+            counts = dr.full(mi.UInt32, count, dr.width(span))
+        last = mi.Float(dr.maximum(counts, 2) - 1)          # intervals of a row (≥ 1)
+        return ReferenceRows(decays, counts, last, s_lo, span, lo, s_q)
+    return frame_memo(queries, ("reference_rows", float(sigma_t), float(length), int(count),
+                                float(spacing)), make)
+
+
 def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
                    spacing: float = SPACING) -> ReferenceRays:
     """Reference rays equally spaced in s over each row's β range (module
@@ -104,21 +153,9 @@ def reference_rays(queries, sigma_t: float, length: float, count: int = 0,
     rays are equally spaced in β.  σt, ℓ and ``k`` enter the kernels as
     parameters; the most rays of any row (a read-back) is the Python loop
     count of the filters."""
-    lo, hi = query_beta_range(queries)
-    rate = float(sigma_t) * float(length)
-    decays = rate > 1e-6
-    if decays:
-        s_lo, s_hi = (decay_coordinate(b, sigma_t, length) for b in (lo, hi))
-        s_q = decay_coordinate(queries.beta, sigma_t, length)
-    else:
-        s_lo, s_hi, s_q = lo, hi, queries.beta
-    span = dr.select(dr.isfinite(s_hi - s_lo), s_hi - s_lo, 0.0)
-    if count == 0:
-        counts = auto_reference_rays(span if decays else dr.zeros(mi.Float, dr.width(span)),
-                                     spacing)
-    else:
-        counts = dr.full(mi.UInt32, count, dr.width(span))
-    last = mi.Float(dr.maximum(counts, 2) - 1)          # intervals of a row (≥ 1)
+    rows = reference_rows(queries, sigma_t, length, count, spacing)
+    counts, last, s_lo, span, lo = rows.arrays()
+    decays, s_q = rows.decays, rows.s_q
     dr.schedule(counts, last, s_lo, span, lo)           # with the read of the most rays
     K = int(dr.max(counts)[0]) if dr.width(counts) else 1
     n = dr.width(counts)

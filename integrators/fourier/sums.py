@@ -12,7 +12,9 @@ import numpy as np
 
 from ..core.opaque import Divisor, scalar_u32, uints
 from ..epipolar.direct_sum import direct_unshadowed
-from ..epipolar.last_interval import LastInterval, sweep_magnitude, unresolved_samples
+from ..epipolar.kernel.separation import nonzero_terms
+from ..epipolar.last_interval import (LastInterval, SweepSums, sweep_magnitude, sweep_sums,
+                                      unresolved_samples)
 from ..epipolar.light_rays.directional import LightRays
 from ..epipolar.queries import frame_memo
 from .rectified_map import Coverage, query_beta_range, reference_angle
@@ -53,9 +55,14 @@ def channels(L: mi.TensorXf, A: mi.TensorXf | None, sigma_t) -> int:
 def used_components(queries, B) -> np.ndarray:
     """(C, N) whether some query's B of channel c, component i is not 0
     (the components a channel's sums need), for every channel in one
-    kernel and one read, once per frame's queries and B."""
+    read, once per frame's queries and B: the flags the kernel that wrote
+    B made (:func:`~integrators.epipolar.kernel.separation.nonzero_terms`),
+    else in one kernel of their own."""
     def make():
         C, N = B.shape[2], B.shape[3]
+        flags = nonzero_terms(queries, B)
+        if flags is not None:
+            return np.asarray(flags).reshape(C, N)
         term, q = Divisor(queries.count).divmod(dr.arange(mi.UInt32, C * N * queries.count))
         b_all = dr.gather(mi.Float, B.array, queries.slot_of(q) * scalar_u32(C * N) + term)
         used = dr.zeros(mi.UInt32, C * N)
@@ -77,14 +84,22 @@ class KernelParts:
         self.terms = terms
         #: the used components' offsets in A and B (c·N + i), on the host
         self.used = []
+        #: the channel the parts were taken from and the sweep's sums of the
+        #: same A and L (:func:`~integrators.epipolar.last_interval.sweep_sums`;
+        #: None: none), which :func:`unshadowed_sums` reads where given
+        self.channel = 0
+        self.swept = None
 
     @staticmethod
-    def of(queries, rays, L, A, B, c: int) -> "KernelParts":
+    def of(queries, rays, L, A, B, c: int, swept: SweepSums | None = None) -> "KernelParts":
         """Channel ``c`` of L and of A, B (a grey one serves every channel);
         the rank's stride and the component's offset are kernel parameters,
-        so every component (of any rank) reads with the same kernels."""
+        so every component (of any rank) reads with the same kernels;
+        ``swept``: the sweep's sums of these A and L, if made
+        (:func:`unresolved_by_separation`)."""
         lanes = dr.arange(mi.UInt32, queries.n * rays.d)
         CL = _channel_count(L, 2)
+        channel = c
         L_c = dr.gather(mi.Float, L.array, lanes * CL + min(c, CL - 1))
         if A is None or not queries.count:    # the direct sum: no separated kernel
             return KernelParts(L_c, [], [])
@@ -102,6 +117,7 @@ class KernelParts:
             B_c.append(b)
         parts = KernelParts(L_c, A_c, B_c, (A.array, B.array, stride))
         parts.used = [c * N + i for i in range(N) if used[i]]
+        parts.channel, parts.swept = channel, swept
         return parts
 
     def unshadowed(self, cover: Coverage, queries) -> mi.Float:
@@ -118,11 +134,16 @@ def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
     its components in a loop (``queries``: theirs) -- two kernels, the same
     for any rank and channel count; the sums of adding one component after
     another (a stacked prefix sum sums each row's block as a lone one
-    does), each U bit for bit its channel's alone."""
+    does), each U bit for bit its channel's alone.  Where the unresolved
+    test's sweep summed the same A and L, its prefix sums are read instead
+    (:func:`_swept_sums`: no kernel of their own, the same U)."""
     out = [dr.zeros(mi.Float, dr.width(cover.frac)) for _ in parts]
     live = [c for c, p in enumerate(parts) if p.A]
     if not live:
         return out
+    swept = _swept_sums(parts, live, cover, queries)
+    if swept is not None:
+        return swept
     A, B, stride = parts[live[0]].terms
     first, offsets, owner = {}, [], []
     for c in live:
@@ -156,6 +177,44 @@ def unshadowed_sums(parts: list, cover: Coverage, queries) -> list:
     return out
 
 
+def _swept_sums(parts: list, live: list, cover: Coverage, queries) -> list | None:
+    """:func:`unshadowed_sums` from the prefix sums of A L that the
+    unresolved test's sweep made of the same A and L (the parts'
+    ``swept``, :func:`~integrators.epipolar.last_interval.sweep_sums`: the
+    same terms summed in the same order, no kernel of their own), each U
+    bit for bit the stack's; None where the parts have none."""
+    sums = parts[live[0]].swept
+    if sums is None or sums.w != cover.d + 1 or any(parts[c].swept is not sums for c in live):
+        return None
+    B, stride = parts[live[0]].terms[1], parts[live[0]].terms[2]
+    N = sums.N
+    # per used component: its offset in B and its block in the sweep's layout
+    offsets, blocks = [], []
+    for c in live:
+        p = parts[c]
+        offsets += p.used
+        blocks += [p.channel * N + (off % N) for off in p.used]
+    offsets_o, blocks_o = uints(offsets), uints(blocks)
+    k0 = covered_interval(queries, cover).k0
+    at0 = queries.row * scalar_u32(sums.C * sums.N)
+    w = scalar_u32(sums.w)
+    slot = queries.slot * stride
+    out = [dr.zeros(mi.Float, dr.width(cover.frac)) for _ in parts]
+    first = 0
+    for c in live:
+        base, n_c = scalar_u32(first), scalar_u32(len(parts[c].used))
+        first += len(parts[c].used)
+
+        def body(i, U, base=base):
+            b = dr.gather(mi.Float, B, slot + dr.gather(mi.UInt32, offsets_o, base + i))
+            at = (at0 + dr.gather(mi.UInt32, blocks_o, base + i)) * w + k0
+            return i + 1, U + b * (dr.gather(mi.Float, sums.cum, at)
+                                   + cover.frac * dr.gather(mi.Float, sums.v, at))
+        _, out[c] = dr.while_loop(state=(mi.UInt32(0), out[c]),
+                                  cond=lambda i, U, n_c=n_c: i < n_c, body=body)
+    return out
+
+
 def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
                     band_cells: int) -> mi.Color3f:
     """What U (:meth:`KernelParts.unshadowed`, the banded separated kernel)
@@ -171,15 +230,26 @@ def unshadowed_band(model, params, queries, rays, A, B, L, cover: Coverage,
 
 def covered_interval(queries, cover: Coverage) -> LastInterval:
     """Each query's last light-ray interval as the coverage reads it (the
-    texel ⌊D⌋ and its covered fraction), every texel lit."""
-    k0 = cover.texel - queries.row * scalar_u32(cover.d)
-    ones = dr.full(mi.Float, 1.0, queries.count)
-    return LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+    texel ⌊D⌋ and its covered fraction), every texel lit; one per frame's
+    queries and coverage (the band and the unresolved test read the same)."""
+    def make():
+        k0 = cover.texel - queries.row * scalar_u32(cover.d)
+        ones = dr.full(mi.Float, 1.0, queries.count)
+        return LastInterval(k0, cover.frac, ones, ones, dr.zeros(mi.UInt32, 0))
+    return frame_memo(queries, ("covered_interval", cover), make)
+
+
+def schedule_band(model, queries, rays, A, cover: Coverage, band_cells: int) -> None:
+    """Schedule what :func:`unshadowed_band` will read of the queries alone
+    (the light model's ``schedule_band``): evaluated by the next kernel
+    over them (nothing without a band or a separated kernel)."""
+    if A is not None and band_cells:
+        model.schedule_band(queries, rays, covered_interval(queries, cover), band_cells)
 
 
 def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None,
-                             sigma_t=None) -> mi.Bool:
-    """Camera samples (a mask) with a query whose unshadowed sum U the
+                             sigma_t=None) -> tuple:
+    """(maker, sums): the maker of a mask of the camera samples with a query whose unshadowed sum U the
     separated kernel does not resolve: U below
     :data:`~integrators.epipolar.last_interval.UNRESOLVED_RATIO` of the
     magnitude of its terms
@@ -193,12 +263,18 @@ def unresolved_by_separation(queries, A, B, L, cover: Coverage, direct_rays=None
     along the query
     (:func:`~integrators.epipolar.direct_sum.direct_unshadowed`, the
     tree's second test: a thick fog seen toward the sun, where the light
-    side grows as the kernel decays).  Such samples are ray-marched."""
+    side grows as the kernel decays).  Such samples are ray-marched.  The
+    sums the test reads are made here (``sums``: the sweep's,
+    :func:`~integrators.epipolar.last_interval.sweep_sums`, which
+    :func:`unshadowed_sums` can read); the mask, a scatter over the
+    queries, where the maker is called (in the next kernel over the
+    queries: the epipolar template's ``march_later``)."""
     last = covered_interval(queries, cover)
-    M, U = sweep_magnitude(queries, A, B, L, last)
+    sums = sweep_sums(queries, A, B, L)
+    M, U = sweep_magnitude(queries, A, B, L, last, sums)
     direct = (None if direct_rays is None else
               direct_unshadowed(queries, direct_rays, L, last, sigma_t))
-    return unresolved_samples(queries, U, M, direct)
+    return (lambda: unresolved_samples(queries, U, M, direct)), sums
 
 
 def row_shift(a, smap) -> mi.Float:

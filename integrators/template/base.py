@@ -115,6 +115,10 @@ class RenderRecord:
     #: not resolve and asks the epipolar template to ray-march with the
     #: samples it marches anyway (one march: ``remarch_disagreeing``)
     march: list = field(default_factory=list)
+    #: (stats name, mask maker) pairs: camera-sample masks asked for like
+    #: ``march`` whose maker the template calls where its next kernel over
+    #: the queries makes them (``remarch_disagreeing``)
+    march_later: list = field(default_factory=list)
     #: with ``report_launches``: JIT kernels launched per stage (else None)
     launches: dict | None = None
     #: the stage running (what launches outside every stage count under)

@@ -242,6 +242,14 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         self.render_record.march.append(samples)
         return dr.width(samples)
 
+    def march_later(self, name: str, mask_of) -> None:
+        """Have the camera samples of the mask ``mask_of()`` makes (a mask
+        over the samples, e.g. written by a scatter over the queries)
+        ray-marched as :meth:`march_samples` does, the mask made by the
+        disagreement test's kernel over the queries
+        (:meth:`remarch_disagreeing`); ``stats[name]`` counts the samples."""
+        self.render_record.march_later.append((name, mask_of))
+
     def remarch_disagreeing(self, params, cap, queries, values):
         """Stage ``ring``: the (unweighted) query ``values`` with the camera
         samples whose two neighbouring slices disagree by more than
@@ -253,8 +261,9 @@ class EpipolarIntegrator(EpiscatterIntegrator):
         with ``slice_interpolation`` (a nearest-slice query has no second
         answer); ``stats["remarched"]`` counts the samples.  The samples the
         method asked to march (``RenderRecord.march``, e.g. the tree's
-        unresolved sums) are marched in the same pass.  A narrow spot
-        light's few lit samples are marched too
+        unresolved sums; the masks of :meth:`march_later`, made by the
+        disagreement test's kernel) are marched in the same pass.  A
+        narrow spot light's few lit samples are marched too
         (:func:`~integrators.epipolar.light_rays.local.cone_samples`, chosen on
         the whole frame so that a partial render marches what the full one
         does)."""
@@ -262,10 +271,15 @@ class EpipolarIntegrator(EpiscatterIntegrator):
             # the values, where the method left them unevaluated, with the
             # disagreement's test (one kernel over the queries)
             dr.schedule(values)
+            # the masks asked for later (march_later), with the same kernel
+            later, self.render_record.march_later = self.render_record.march_later, []
+            later = [(name, mask_of()) for name, mask_of in later]
             cone = cone_samples(params, queries)     # its test with the disagreement's
             remarch = disagreeing_samples(queries, values, self.remarch_disagreement)
             remarch = union_samples(queries.n_samples, remarch, cone())
             self.record(remarched=dr.width(remarch))
+            for name, mask in later:
+                self.record(**{name: self.march_samples(mask)})
             # with the samples the method asked for (RenderRecord.march)
             asked, self.render_record.march = self.render_record.march, []
             remarch = union_samples(queries.n_samples, remarch, *asked)

@@ -373,7 +373,8 @@ def query_x(queries: EpipolarQueries) -> mi.Float:
     largest) and scheduled: evaluated by the next kernel over the queries
     (the asymptote band's test,
     :func:`~integrators.epipolar.local_query_terms.reaches_asymptote_band`,
-    asks for it first) or where it is read."""
+    and :func:`lit_domain`'s reductions ask for it first) or where it is
+    read."""
     def make():
         x = dr.tan(0.5 * queries.beta) * dr.tan(0.5 * queries.gamma_end)
         dr.schedule(x)
@@ -400,6 +401,7 @@ def lit_domain(params, queries: EpipolarQueries, rays: LocalLightRays):
         gamma_lo = row_extremes(rays.gamma_lo, rows)[0]
         gamma_hi = row_extremes(rays.gamma_max, rows)[1]
         row_lit = dr.gather(mi.Bool, lit, queries.row) if any_lit else mi.Bool(True)
+        query_x(queries)        # scheduled: evaluated with the reductions below
         seen = row_lit & (queries.beta < scalar(math.pi - gamma_lo))
         any_seen, lo_seen, hi_seen, lo_q, hi_q = host_reductions(
             (dr.any, seen), (dr.min, dr.select(seen, queries.beta, dr.inf)),
@@ -487,9 +489,10 @@ class LocalSeparation:
     def channel(self, params, queries, rays: LocalLightRays, sigma_t: float, rank: int,
                 tol: float) -> LocalChannel:
         L = float(queries.frame.light_distance)
+        # the domain first: its kernel over the queries makes their x too
+        gamma_lo, gamma_hi, beta_lo, beta_hi = lit_domain(params, queries, rays)
         x_max = query_x_max(queries)
         band = self.band_tan(rays)
-        gamma_lo, gamma_hi, beta_lo, beta_hi = lit_domain(params, queries, rays)
         sep = separate_local_channel(params, sigma_t, L, x_max, gamma_lo, gamma_hi,
                                      beta_lo, beta_hi, rank, tol, band_tan=band)
         return LocalChannel(math.tan(0.5 * beta_lo), math.tan(0.5 * beta_hi), *sep,

@@ -25,6 +25,7 @@ import numpy as np
 from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
 from ..light_factor import gray, light_side_extinction, light_side_gains, lowest_light_side
 from ..light_rays.directional import LIGHT_SIDE_RANGE
+from ..queries import frame_memo, frame_memo_get
 from .svd import MAX_RANK, SAMPLES, log1p_grid, separate_sampled_kernel, widen_empty
 from .table import nystrom_sums, tabulated_terms, term_table
 
@@ -147,6 +148,7 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     tan_half = dr.tan(0.5 * queries.beta)   # only at the queries; padded slots stay 0
     A = dr.zeros(mi.Float, count * C * N)
     B = dr.zeros(mi.Float, queries.n * queries.r * C * N)
+    used = dr.zeros(mi.UInt32, C * N)
     CN = scalar_u32(C * N)          # the rank is the frame's: not a literal
     lane_a = dr.arange(mi.UInt32, count) * CN
     lane_b = queries.slot * CN
@@ -161,13 +163,29 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
             term = scalar_u32(c * N + i)
             dr.scatter_reduce(dr.ReduceOp.Add, A, a_terms[i], lane_a + term)
             dr.scatter_reduce(dr.ReduceOp.Add, B, b_terms[i], lane_b + term)
+            # whether some query's b_i is not 0, in the kernel that writes B
+            dr.scatter_reduce(dr.ReduceOp.Max, used, mi.UInt32(b_terms[i] != 0.0), term)
     d = rays.d
     if own:
         A = separation.to_rows(A, queries, rays, C * N)
     else:
         d = count // queries.n
-    return (mi.TensorXf(A, shape=(queries.n, d, C, N)),
-            mi.TensorXf(B, shape=(queries.n, queries.r, C, N)))
+    B = mi.TensorXf(B, shape=(queries.n, queries.r, C, N))
+    frame_memo(queries, (NONZERO_TERMS, B), lambda: used)
+    return mi.TensorXf(A, shape=(queries.n, d, C, N)), B
+
+
+#: :func:`~integrators.epipolar.queries.frame_memo` key of :func:`nonzero_terms`
+NONZERO_TERMS = "nonzero_terms"
+
+
+def nonzero_terms(queries, B) -> mi.UInt32 | None:
+    """(C·N) 1 where some query's B of channel c, term i (at c·N + i) is not
+    0, else 0: written by the kernel that writes B
+    (:func:`separate_kernel`; a host copy reads it without a kernel of its
+    own); None for a B that :func:`separate_kernel` did not make for these
+    queries."""
+    return frame_memo_get(queries, (NONZERO_TERMS, B))
 
 
 #: re-separations :func:`checked_tolerances` may make
