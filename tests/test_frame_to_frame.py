@@ -95,7 +95,10 @@ def test_a_new_frame_compiles_no_kernel(kind, light, change, request):
     reason = KNOWN.get((kind, light, change))
     if reason:
         request.applymarker(pytest.mark.xfail(reason=reason, strict=True))
-    rng = random.Random()
+    # one fixed move per case: a σt move that changes the automatic SVD
+    # rank compiles the kernels unrolled over it once per new rank (a
+    # different kernel, not a changed literal; docs/limitations.md)
+    rng = random.Random(f"{kind}-{light}-{change}")
     cam, sigma, lx = rng.uniform(-0.2, 0.2), rng.uniform(0.2, 0.4), rng.uniform(0.3, 0.6)
     # minmax_epipolar's epipolar pipeline: at this image size its defaults
     # would march every pixel instead (small_image_march)
