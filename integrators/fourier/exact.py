@@ -112,13 +112,7 @@ def exact_sums(params, queries, rays, beta_b, cover, L, sigma_t: float,
             off = at if c == 0 else scalar_u32(c) * Q + at
             num[c] += dr.select(active, dr.gather(mi.Float, deltas, off), 0.0)
     elif tail is not None:     # the traced end runs instead of the map there
-        def kernel_at(t, q):
-            tq = dr.tan(0.5 * dr.gather(mi.Float, beta, q))    # tan, where read (no kernel)
-            if not geometric:
-                return kernel(t, tq)
-            r = dr.gather(mi.UInt32, row, q)
-            gamma = rays.start(r) + mi.Float(t - r * d) * dr.gather(mi.Float, rays.delta_gamma, r)
-            return dr.exp(-sigma * tq * gamma)
+        kernel_at = _run_kernel(rays, row, beta, sigma, geometric, kernel)
         for c in range(C):
             delta = tail.delta(row, texel, frac, beta, beta_b, rays.d,
                                lambda t, q: dr.gather(mi.Float, Ls[c], t) * kernel_at(t, q))
@@ -132,15 +126,7 @@ def _tail_deltas(params, queries, rays, beta_b, Ls, sigma, geometric: bool, kern
     (:meth:`~integrators.fourier.tail.TailVisibility.delta`, channel c at
     c·Q + q) of every query, in one kernel; each bit for bit
     :func:`exact_sums`' own per query."""
-    d = scalar_u32(rays.d)
-
-    def kernel_at(t, q):
-        tq = dr.tan(0.5 * dr.gather(mi.Float, beta, q))    # tan, where read (no kernel)
-        if not geometric:
-            return kernel(t, tq)
-        r = dr.gather(mi.UInt32, row, q)
-        gamma = rays.start(r) + mi.Float(t - r * d) * dr.gather(mi.Float, rays.delta_gamma, r)
-        return dr.exp(-sigma * tq * gamma)
+    kernel_at = _run_kernel(rays, row, beta, sigma, geometric, kernel)
 
     def weight(t, q, c=None):
         L_t = dr.gather(mi.Float, Ls[-1], t)
@@ -150,3 +136,20 @@ def _tail_deltas(params, queries, rays, beta_b, Ls, sigma, geometric: bool, kern
         return L_t * kernel_at(t, q)
     return tail.delta(row, texel, frac, beta, beta_b, rays.d,
                       weight if len(Ls) > 1 else (lambda t, q: weight(t, q)), len(Ls))
+
+
+def _run_kernel(rays, row, beta, sigma, geometric: bool, kernel):
+    """K(t, q) of light ray ``t`` at query ``q`` (its β read where used):
+    the texel ``kernel``, or the directional light's e^{-σt γ_t tan(β/2)}
+    at the ray's start where ``geometric`` -- the traced end runs' weights
+    (:meth:`~integrators.fourier.tail.TailVisibility.delta`)."""
+    d = scalar_u32(rays.d)
+
+    def kernel_at(t, q):
+        tq = dr.tan(0.5 * dr.gather(mi.Float, beta, q))    # tan, where read (no kernel)
+        if not geometric:
+            return kernel(t, tq)
+        r = dr.gather(mi.UInt32, row, q)
+        gamma = rays.start(r) + mi.Float(t - r * d) * dr.gather(mi.Float, rays.delta_gamma, r)
+        return dr.exp(-sigma * tq * gamma)
+    return kernel_at
