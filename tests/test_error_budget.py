@@ -139,6 +139,27 @@ def test_a_still_far_marcher_choice_is_refitted_through_2048_steps():
     assert rq.refit(FixedProbe(fine), 128, 512, 1e-4, qa.FIT["raymarch"])[0] > 4000
 
 
+def test_a_loose_marcher_budget_is_probed_at_few_steps():
+    """A 1e-3 budget needs tens of steps: the probe marches 16 and 32
+    (64 and 128 cost more than the render they choose, held-out user
+    scenes at 320x240), extrapolates through them, and refits through 32
+    and 128 steps against its own reference where that asks for more."""
+    probe = FixedProbe([2e-3, 5e-4])                       # k = -2: ~30 steps
+    choice = rq.choose_raymarch(probe, 1e-3)
+    assert [a["steps"] for a in probe.asked] == list(rq.LOOSE_MARCH_PROBE)
+    assert choice["steps"] == math.ceil(32 * (qa.SAFETY * 1e-3 / 5e-4) ** (1 / -2.0))
+    far = FixedProbe([4e-2, 2e-2, 2e-2, 2e-2 * 4.0 ** -3])  # k = -1, then -3 to 128
+    choice = rq.choose_raymarch(far, 1e-3)
+    assert [(a["steps"], a.get("fine", False)) for a in far.asked] == \
+        [(16, False), (32, False), (32, False), (128, False)]
+    needed = 128 * (qa.SAFETY * 1e-3 / (2e-2 * 4.0 ** -3)) ** (1 / -3.0)
+    assert choice["steps"] == math.ceil(needed)
+    # a tighter budget keeps the finer pair
+    probe = FixedProbe([1e-3, 2.5e-4])
+    rq.choose_raymarch(probe, 1e-4)
+    assert [a["steps"] for a in probe.asked] == list(rq.MARCH_PROBE)
+
+
 def test_a_near_marcher_choice_is_not_refitted():
     probe = FixedProbe([1e-3, 2.5e-4])                     # k = -2: 1e-4 needs ~160 steps
     choice = rq.choose_raymarch(probe, 1e-4)
@@ -162,6 +183,24 @@ class FixedProbe:
         self.over_budget = (budget, relmse)
 
 
+def test_minmax_keeps_a_measured_step_where_a_finer_one_does_not_help():
+    """Held-out window rooms and canopies at 1e-5: steps 16 and 4 measure
+    8.2e-6 and 7.8e-6 (the error lies in the slices, not the initial
+    samples); the rule chose step 1 from the clamped exponent and rendered
+    it for 7.9e-6 at 1.5x the time.  Now the better measured step is kept,
+    flagged only where it misses the budget."""
+    probe = FixedProbe([8.2e-6, 7.8e-6])
+    assert mq.choose_minmax(probe, 1e-5) == {"initial_step": mq.MINMAX_PROBE[1]}
+    assert len(probe.asked) == 2 and probe.predicted == 7.8e-6
+    assert probe.predicted_from == "measured" and not hasattr(probe, "over_budget")
+    probe = FixedProbe([2.5e-5, 2.6e-5])
+    assert mq.choose_minmax(probe, 1e-5) == {"initial_step": mq.MINMAX_PROBE[0]}
+    assert probe.over_budget == (1e-5, 2.5e-5) and len(probe.asked) == 2
+    # a finer step that helps is still extrapolated
+    probe = FixedProbe([8e-6, 2e-6])
+    assert mq.choose_minmax(probe, 1e-5) == {"initial_step": mq.minmax_step(8e-6, 2e-6, 1e-5)}
+
+
 def test_tree_model_recovers_both_terms_from_any_second_setting():
     fit = qa.FIT["epipolar_tree"]
     s0, r0, _ = tq.TREE_PROBE
@@ -176,11 +215,17 @@ def test_tree_model_recovers_both_terms_from_any_second_setting():
 def test_tree_renders_its_prediction_second_and_keeps_it_when_it_meets_the_target():
     """The first probe just misses a 1e-5 budget (relMSE 8e-6 for a target
     of 5e-6); the second probe is the setting predicted from that error
-    alone (no dearer than the fixed second probe), and its error (1e-6)
-    meets the target, so it is the answer (its probe render reused)."""
+    alone -- meeting the target whichever way the error splits between the
+    two terms within the suite's range -- no dearer than the fixed second
+    probe, and its error (1e-6) meets the target, so it is the answer (its
+    probe render reused)."""
     s0, _, r1 = tq.TREE_PROBE
-    s, r = tq.tree_choice_of(8e-6, 8e-6, 1e-5)
+    s, r = tq.split_choice(8e-6, 1e-5)
     assert tq.second_probe(8e-6, 1e-5) == (s, r)
+    for w in tq.PRIOR_SPLIT:
+        assert tq.tree_error(w * 8e-6, (1 - w) * 8e-6, s, r) <= qa.target_of(1e-5)
+    # cheaper than giving each term the whole error, as the rule once did
+    assert tq.tree_time(s, r) < tq.tree_time(*tq.tree_choice_of(8e-6, 8e-6, 1e-5))
     assert tq.tree_time(s0, r1) < tq.tree_time(s, r) <= tq.PREDICTION_COST * tq.tree_time(s0, r1)
     probe = FixedProbe([8e-6, 1e-6])
     got = tq.choose_tree(probe, 1e-5)

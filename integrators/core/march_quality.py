@@ -1,7 +1,9 @@
 """The ``quality="auto"`` rule of ``raymarch`` (exact visibility, Baran 2010
 §2's reference marcher): relMSE = C·n^k in the steps n; the probe marches
 the subset at :data:`MARCH_PROBE` steps, which gives the scene's own C and k
-(k clamped to ``FITTED["k_range"]``).
+(k clamped to ``FITTED["k_range"]``) -- at a loose budget
+(:data:`LOOSE_BUDGET`) the coarser :data:`LOOSE_MARCH_PROBE`, nearer the
+few steps such a budget needs and cheaper beside a render of them.
 
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
 the plugin registers :data:`MARCH_RULE`.
@@ -18,6 +20,14 @@ from .quality_auto import Probe, QualityRule, clamped_exponent, target_of
 FITTED = {"k": -1.99, "k_range": (-4.0, -1.0)}
 #: steps of the marcher's probe
 MARCH_PROBE = (64, 128)
+#: budgets from this one up are probed at :data:`LOOSE_MARCH_PROBE`
+LOOSE_BUDGET = 3e-4
+#: steps of the marcher's probe at a loose budget: such a budget needs
+#: tens of steps, where the probe's two partial renders and its reference
+#: cost about a render of the answer; a choice beyond
+#: :data:`LOOSE_REFIT_STEPS` is refitted through it and its finer count
+LOOSE_MARCH_PROBE = (16, 32)
+LOOSE_REFIT_STEPS = 128
 #: a choice beyond this many steps is refitted through it (:func:`choose_raymarch`)
 REFIT_STEPS = 512
 #: a refitted choice beyond this many steps is refitted again through
@@ -37,9 +47,15 @@ def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     for more than :data:`FAR_REFIT_STEPS`, once more through those two
     counts (:func:`refit`)."""
     fit = fit or FITTED
-    e1, e2 = (probe.error(p, partial=True) for p in march_probe(probe.diagonal))
-    n = march_steps(e1, e2, budget, fit)
-    predicted = march_error(e1, e2, n, fit)
+    pair = LOOSE_MARCH_PROBE if budget >= LOOSE_BUDGET else MARCH_PROBE
+    e1, e2 = (probe.error({"visibility": "exact", "steps": m}, partial=True) for m in pair)
+    n = march_steps(e1, e2, budget, fit, pair)
+    predicted = march_error(e1, e2, n, fit, pair)
+    if pair == LOOSE_MARCH_PROBE and n > LOOSE_REFIT_STEPS and predicted is not None:
+        # the coarse slope is no guide that far: through the finer count and
+        # LOOSE_REFIT_STEPS, against the probe's own reference (a loose
+        # budget's target is far above its error)
+        n, predicted = refit(probe, pair[1], LOOSE_REFIT_STEPS, budget, fit, fine=False)
     if n > REFIT_STEPS and predicted is not None:
         n, predicted = refit(probe, MARCH_PROBE[1], REFIT_STEPS, budget, fit)
         if n > FAR_REFIT_STEPS and predicted is not None:
@@ -53,11 +69,12 @@ def choose_raymarch(probe: Probe, budget: float, fit=None) -> dict:
     return {"visibility": "exact", "steps": n}
 
 
-def refit(probe: Probe, lo: int, hi: int, budget: float, fit) -> tuple:
+def refit(probe: Probe, lo: int, hi: int, budget: float, fit, fine: bool = True) -> tuple:
     """(steps, predicted relMSE) of relMSE = C n^k through the errors at
-    ``lo`` and ``hi`` steps against the finer reference (k clamped);
-    (``hi``, None) where ``hi`` already matches that reference."""
-    f_lo, f_hi = (probe.error({"visibility": "exact", "steps": m}, partial=True, fine=True)
+    ``lo`` and ``hi`` steps against the finer reference (``fine``; else the
+    probe's own) (k clamped); (``hi``, None) where ``hi`` already matches
+    that reference."""
+    f_lo, f_hi = (probe.error({"visibility": "exact", "steps": m}, partial=True, fine=fine)
                   for m in (lo, hi))
     if not (f_hi > 0 and math.isfinite(f_hi)):
         return hi, None
@@ -66,28 +83,29 @@ def refit(probe: Probe, lo: int, hi: int, budget: float, fit) -> tuple:
     return n, f_hi * (n / hi) ** k
 
 
-def march_exponent(e1: float, e2: float, fit=None) -> float:
-    """k of relMSE = C n^k through the errors at :data:`MARCH_PROBE`
-    (clamped to the fit's range; the fitted k where e1 shows nothing)."""
-    n1, n2 = MARCH_PROBE
+def march_exponent(e1: float, e2: float, fit=None, pair=MARCH_PROBE) -> float:
+    """k of relMSE = C n^k through the errors at the probe's step counts
+    ``pair`` (clamped to the fit's range; the fitted k where e1 shows
+    nothing)."""
+    n1, n2 = pair
     return clamped_exponent(e2, e1, n2, n1, fit or FITTED)
 
 
-def march_steps(e1: float, e2: float, budget: float, fit=None) -> int:
+def march_steps(e1: float, e2: float, budget: float, fit=None, pair=MARCH_PROBE) -> int:
     """Steps n with C n^k = SAFETY·budget, C and k from the errors ``e1``,
-    ``e2`` at :data:`MARCH_PROBE` (module doc)."""
-    n2 = MARCH_PROBE[1]
+    ``e2`` at the step counts ``pair`` (module doc)."""
+    n2 = pair[1]
     if not (e2 > 0 and math.isfinite(e2)):
         return 16
-    n = n2 * (target_of(budget) / e2) ** (1.0 / march_exponent(e1, e2, fit))
+    n = n2 * (target_of(budget) / e2) ** (1.0 / march_exponent(e1, e2, fit, pair))
     return int(min(max(math.ceil(n), 16), 16384))
 
 
-def march_error(e1: float, e2: float, n: int, fit=None) -> float | None:
+def march_error(e1: float, e2: float, n: int, fit=None, pair=MARCH_PROBE) -> float | None:
     """The model's relMSE at ``n`` steps (None where the probe saw no error)."""
     if not (e2 > 0 and math.isfinite(e2)):
         return None
-    return e2 * (n / MARCH_PROBE[1]) ** march_exponent(e1, e2, fit)
+    return e2 * (n / pair[1]) ** march_exponent(e1, e2, fit, pair)
 
 
 def march_probe(diagonal: float) -> list[dict]:

@@ -3,7 +3,9 @@ integration samples): relMSE = C·s^k in the initial step s (samples between
 integration samples); the probe renders s = 16 and 4, which give the scene's
 C and k (k clamped to ``FITTED["k_range"]``, set a priori:
 the suite's frontier runs have no minmax sweep to fit it on); the largest
-candidate step predicted to meet the target.
+candidate step predicted to meet the target -- or, where the finer probe
+step hardly lowers the error (:data:`FLAT_GAIN`), the better of the two
+measured steps, flagged where it misses the budget.
 
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
 the plugin registers :data:`MINMAX_RULE`.
@@ -22,6 +24,11 @@ FITTED = {"k": 1.0, "k_range": (0.5, 3.0)}
 #: candidate initial steps of minmax_epipolar, and its probe
 MINMAX_STEPS = (1, 2, 4, 8, 16, 32)
 MINMAX_PROBE = (16, 4)
+#: the least factor by which the probe's finer step must lower the error
+#: for the initial step to count as a lever: below it the error lies
+#: elsewhere (the slices, the light rays, the epipole's ring) and a still
+#: finer step would only cost time (:func:`choose_minmax`)
+FLAT_GAIN = 1.25
 
 
 def minmax_step(e1: float, e2: float, budget: float, fit=None) -> int:
@@ -51,6 +58,14 @@ def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
     if e2 is None:
         probe.predict(e1, "measured")
         return first
+    if e2 > 0 and math.isfinite(e1) and e1 < FLAT_GAIN * e2:
+        # the finer step hardly helps: keep the better of the two measured
+        # settings (both rendered), flagged where it misses the budget
+        best, e = (first, e1) if e1 <= e2 else ({"initial_step": MINMAX_PROBE[1]}, e2)
+        probe.predict(e, "measured")
+        if e > budget:
+            probe.unreachable(budget, e, measured=best)
+        return best
     s = minmax_step(e1, e2, budget, fit)
     if s == MINMAX_PROBE[1]:
         probe.predict(e2, "measured")
