@@ -43,6 +43,10 @@ REFERENCE = {"type": "raymarch", **exact_props(2048)}
 PROBE_REFERENCE = {"type": "raymarch", "visibility": "exact"}
 #: (probe pixels, probe reference steps) whose estimates are compared with the truth
 PROBE_VARIANTS = tuple(itertools.product((150, 300, 600, 1200), (256, 512, 1024)))
+#: the probe's own pixels: strided ones and the edges of its first
+#: setting's image (quality_auto.Strata), as a PROBE_VARIANTS pixels entry
+STRATIFIED = "900+300 edges"
+ESTIMATE_VARIANTS = PROBE_VARIANTS + tuple((STRATIFIED, n) for n in (256, 512, 1024))
 LEVELS = (1e-3, 1e-4, 1e-5)
 FIT_RUNS = ["results/frontier/quick640/runs.json", "results/frontier/quick160/runs.json"]
 METHODS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
@@ -248,12 +252,18 @@ def probe_accuracy(name, method, scene, ref, images, refs):
 
     h, w = ref.shape[:2]
     rows = []
+    first = next(iter(images.values()), None)
+    strata = (qa.Strata(qa.probe_pixels(w, h, qa.PROBE_PIXELS - qa.EDGE_PIXELS),
+                        qa.edge_pixels(first), w * h, qa.EDGE_PIXELS)
+              if first is not None else None)
     for key, img in images.items():
         true = fr.image_errors(img, ref)["relmse"]
         flat = img.reshape(-1, img.shape[-1])
-        for pixels, steps in PROBE_VARIANTS:
-            idx = qa.probe_pixels(w, h, pixels)
-            est = qa.subset_relmse(flat[idx], refs[steps].reshape(-1, img.shape[-1])[idx])
+        for pixels, steps in ESTIMATE_VARIANTS:
+            idx, wts = ((strata.pixels, strata.weights) if pixels == STRATIFIED else
+                        (qa.probe_pixels(w, h, pixels), None))
+            est = qa.subset_relmse(flat[idx], refs[steps].reshape(-1, img.shape[-1])[idx],
+                                   weights=wts)
             rows.append({"scene": name, "method": method, "settings": key, "pixels": pixels,
                          "pixels_used": len(idx),
                          "reference_steps": steps, "true_relmse": true, "estimate": est,
@@ -268,9 +278,9 @@ def probe_reference_times(name, scene) -> list[dict]:
 
     rows = []
     for pixels, steps in PROBE_VARIANTS:
-        qa.Probe(scene, 0, "raymarch", {}, pixels, steps)
+        qa.Probe(scene, 0, "raymarch", {}, pixels, steps).reference
         t0 = time.perf_counter()
-        qa.Probe(scene, 0, "raymarch", {}, pixels, steps)
+        qa.Probe(scene, 0, "raymarch", {}, pixels, steps).reference
         rows.append({"scene": name, "method": "reference", "pixels": pixels,
                      "reference_steps": steps, "time_s": time.perf_counter() - t0})
     return rows
@@ -431,7 +441,7 @@ def summarize_probes(probes) -> list[dict]:
             times.setdefault((p["pixels"], p["reference_steps"]), []).append(p["time_s"])
     out = []
     for method in sorted({p["method"] for p in est}):
-        for pixels, steps in PROBE_VARIANTS:
+        for pixels, steps in ESTIMATE_VARIANTS:
             sel = [p for p in est if p["method"] == method and p["reference_steps"] == steps
                    and p["pixels"] == pixels]
             if not sel:

@@ -2,8 +2,9 @@
 §2's reference marcher): relMSE = C·n^k in the steps n; the probe marches
 the subset at :data:`MARCH_PROBE` steps, which gives the scene's own C and k
 (k clamped to ``FITTED["k_range"]``) -- at a loose budget
-(:data:`LOOSE_BUDGET`) the coarser :data:`LOOSE_MARCH_PROBE`, nearer the
-few steps such a budget needs and cheaper beside a render of them.
+(:data:`~integrators.core.quality_auto.LOOSE_BUDGET`) the coarser
+:data:`LOOSE_MARCH_PROBE`, nearer the few steps such a budget needs and
+cheaper beside a render of them.
 
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
 the plugin registers :data:`MARCH_RULE`.
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from .quality_auto import Probe, QualityRule, clamped_exponent, target_of
+from .quality_auto import LOOSE_BUDGET, Probe, QualityRule, clamped_exponent, target_of
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -20,8 +21,6 @@ from .quality_auto import Probe, QualityRule, clamped_exponent, target_of
 FITTED = {"k": -1.99, "k_range": (-4.0, -1.0)}
 #: steps of the marcher's probe
 MARCH_PROBE = (64, 128)
-#: budgets from this one up are probed at :data:`LOOSE_MARCH_PROBE`
-LOOSE_BUDGET = 3e-4
 #: steps of the marcher's probe at a loose budget: such a budget needs
 #: tens of steps, where the probe's two partial renders and its reference
 #: cost about a render of the answer; a choice beyond

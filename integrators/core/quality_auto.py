@@ -14,10 +14,14 @@ Common properties (every method, read by the template):
 
 How a method chooses (:data:`RULES`): a *probe* renders the scene at one
 or two cheap settings of the method and measures their relMSE directly
-on a strided subset of about :data:`PROBE_PIXELS` pixel centres, against
-an exact marcher (``raymarch visibility=exact`` with boundary bisections,
-:func:`reference_settings`) run on that subset alone (a partial render, which marches only
-the masked samples).  An error model per method, with exponents fitted on
+on a strided subset of about :data:`PROBE_PIXELS` pixel centres -- and,
+where its first render is a full image, :data:`EDGE_PIXELS` of them on
+that image's edges instead, each stratum weighted by its share of the image
+(:class:`Strata`: a few thin shafts can hold most of an error that a
+strided subset steps over) -- against an exact marcher (``raymarch
+visibility=exact`` with boundary bisections, :func:`reference_settings`)
+run on those pixels alone (a partial render, which marches only the
+masked samples).  An error model per method, with exponents fitted on
 the suite's frontier runs (``python -m experiments.error_budget --fit``,
 constants in :data:`FIT`), turns the probe's errors into a prediction for
 every candidate setting; the rule takes the cheapest candidate predicted
@@ -69,6 +73,17 @@ QUALITIES = ("explicit", "auto")
 #: down to a tenth -- the marcher's error on a spot-lit shaft lies in its
 #: edges, which a sparser subset steps over
 PROBE_PIXELS = 1200
+#: the share of the image's pixels that are its edges (:func:`edge_pixels`),
+#: and how many of the probe's pixels are taken on them once it has an
+#: image of the scene (its first full-image render; the rest strided): a
+#: stratified sample (:class:`Strata`).  On 20 held-out scenes at 320x240
+#: (five probe settings each, against the 2,048-step reference): 900
+#: strided + 300 edge pixels misjudge the full image's relMSE by a median
+#: 1.09x (90th percentile 1.47x) and underestimate it by over 2x in 2 of 100
+#: cases, 1,200 strided ones by 1.25x (3.0x) and in 14 -- down to 1/100 on
+#: a spot's thin shafts
+EDGE_SHARE = 0.05
+EDGE_PIXELS = 300
 #: the exact marcher the probe's errors are measured against
 #: (:func:`reference_settings`): with boundary bisections (each shadow
 #: edge located, :func:`~integrators.core.marching.march_bisected`), and
@@ -76,10 +91,16 @@ PROBE_PIXELS = 1200
 #: held-out scenes at 320x240 without a textured light (relMSE on the
 #: probe's pixels against 8,192 steps with 12 bisections,
 #: :mod:`experiments.probe_reference`, ``results/probe_reference``): 64
-#: steps with 8 bisections at most 1.8e-6, in 0.8-1.4x the time of 512
-#: plain steps, which had up to 6e-4 (a spot's thin shafts); 256 with 8 at
-#: most 1.0e-8, in 0.3-0.45x the time of 4,096 plain steps (up to 3.6e-6)
-BISECTED_REFERENCE = {"steps": 64, "boundary_bisections": 8}
+#: steps with 8 bisections at most 1.8e-6 on the strided pixels, in
+#: 0.8-1.4x the time of 512 plain steps, which had up to 6e-4 (a spot's
+#: thin shafts); 256 with 8 at most 1.0e-8, in 0.3-0.45x the time of 4,096
+#: plain steps (up to 3.6e-6).  On the edge pixels of a stratified probe
+#: (:class:`Strata`) 64 steps step over a spot's shafts thinner than a
+#: step (8e-5 on held-out seed 2000, where 128 with 8 have 2e-8; 128 with
+#: 8 at most 7e-7 on 17 such scenes): 64 only for a loose budget
+#: (:data:`LOOSE_BUDGET`), 128 below it, 256 below :data:`TIGHT_BUDGET`
+LOOSE_BISECTED_REFERENCE = {"steps": 64, "boundary_bisections": 8}
+BISECTED_REFERENCE = {"steps": 128, "boundary_bisections": 8}
 FINE_BISECTED_REFERENCE = {"steps": 256, "boundary_bisections": 8}
 #: steps of the plain exact marcher the probe measures against where a
 #: textured spot light lights the scene: its texture varies inside the lit
@@ -95,6 +116,11 @@ FINE_REFERENCE_STEPS = 4096
 #: textured spot through thin bars: against it, a 1e-5 budget chose
 #: 1,600 light rays at 3.8e-5; against the finer one, 6.5e-6)
 TIGHT_BUDGET = 3e-5
+#: budgets from this one up are loose: the probe measures against
+#: :data:`LOOSE_BISECTED_REFERENCE` (without a textured light), and the
+#: marcher's probe marches few steps
+#: (:data:`~integrators.core.march_quality.LOOSE_MARCH_PROBE`)
+LOOSE_BUDGET = 3e-4
 #: the budget's share the rule aims at (the probe's estimate is noisy)
 SAFETY = 0.5
 
@@ -170,24 +196,80 @@ def probe_pixels(width: int, height: int, target: int = PROBE_PIXELS) -> np.ndar
     return (ys * width + xs).ravel()
 
 
+def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE) -> np.ndarray:
+    """Indices (row-major, sorted) of the ``share`` of the pixels of
+    ``image`` (H, W, C) with the largest relative contrast to a 4-neighbour,
+    |Y_p - Y_n| / (Y_p + Y_n + 1e-2 mean Y) on the channel mean Y: the shaft
+    and shadow edges, where a method's error concentrates."""
+    Y = np.asarray(image, np.float64).mean(axis=-1)
+    floor = 1e-2 * max(float(Y.mean()), 1e-30)
+    score = np.zeros_like(Y)
+    for a, b in ((Y[1:, :], Y[:-1, :]), (Y[:, 1:], Y[:, :-1])):
+        c = np.abs(a - b) / (a + b + floor)
+        if a.shape[0] != Y.shape[0]:
+            score[1:, :] = np.maximum(score[1:, :], c)
+            score[:-1, :] = np.maximum(score[:-1, :], c)
+        else:
+            score[:, 1:] = np.maximum(score[:, 1:], c)
+            score[:, :-1] = np.maximum(score[:, :-1], c)
+    n = max(int(round(share * Y.size)), 1)
+    flat = score.ravel()
+    top = np.argpartition(-flat, n - 1)[:n]
+    return np.sort(top[flat[top] > 0])
+
+
+class Strata:
+    """A stratified pixel sample: the probe's strided pixels plus extra
+    pixels on the edges of an image of the scene (:func:`edge_pixels`), each
+    stratum weighted by its share of the image so that the estimate of a
+    mean over all pixels stays unbiased while the edges, where a few thin
+    shafts can hold most of a method's error, are sampled several times as
+    densely.  ``pixels``: the sample's indices (the strided ones first);
+    ``weights``: per sample, its stratum's share of the image over the
+    stratum's samples (they sum to 1)."""
+
+    def __init__(self, strided: np.ndarray, edges: np.ndarray, n_pixels: int, extra: int):
+        in_edges = np.isin(strided, edges)
+        pick = edges[np.linspace(0, len(edges) - 1, min(extra, len(edges))).round().astype(int)] \
+            if len(edges) and extra else np.zeros(0, strided.dtype)
+        pick = np.setdiff1d(pick, strided)
+        self.pixels = np.concatenate([strided, pick]).astype(np.int64)
+        edge = np.concatenate([in_edges, np.ones(len(pick), bool)])
+        w = np.zeros(len(self.pixels))
+        share_e = len(edges) / n_pixels
+        if edge.any():
+            w[edge] = share_e / edge.sum()
+        if (~edge).any():
+            w[~edge] = (1.0 - share_e) / (~edge).sum()
+        else:                                  # every pixel an edge: one stratum
+            w[:] = 1.0 / len(w)
+        self.weights = w / w.sum()
+
+
 def settings_key(settings: dict) -> tuple:
     """A hashable key of a settings dict (its items, sorted)."""
     return tuple(sorted(settings.items()))
 
 
-def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
-    """DESIGN §2's scale-free relMSE of two (pixels, 3) arrays."""
-    floor = eps * float(np.mean(ref)) ** 2
+def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2,
+                  weights: np.ndarray | None = None) -> float:
+    """DESIGN §2's scale-free relMSE of two (pixels, 3) arrays (``weights``:
+    per pixel, summing to 1, for a stratified sample, :class:`Strata`)."""
+    ref = np.asarray(ref, np.float64)
+    w = (np.full(len(ref), 1.0 / max(len(ref), 1)) if weights is None
+         else np.asarray(weights, np.float64))
+    floor = eps * float(np.sum(w * ref.mean(axis=-1))) ** 2
     d2 = (np.asarray(test, np.float64) - ref) ** 2
     if floor <= 0:
         return 0.0 if not d2.any() else math.inf
-    return float(np.mean(d2 / (ref.astype(np.float64) ** 2 + floor)))
+    return float(np.sum(w * np.mean(d2 / (ref ** 2 + floor), axis=-1)))
 
 
-def reference_settings(scene, sensor=0, fine: bool = False) -> dict:
+def reference_settings(scene, sensor=0, fine: bool = False, loose: bool = False) -> dict:
     """The ``raymarch visibility=exact`` settings the probe of ``scene``
-    measures against (``fine``: the finer reference): the bisected marcher
-    (:data:`BISECTED_REFERENCE`, :data:`FINE_BISECTED_REFERENCE`), or
+    measures against (``fine``: the finer reference; ``loose``: a loose
+    budget's): the bisected marcher (:data:`BISECTED_REFERENCE`,
+    :data:`FINE_BISECTED_REFERENCE`, :data:`LOOSE_BISECTED_REFERENCE`), or
     :data:`REFERENCE_STEPS` / :data:`FINE_REFERENCE_STEPS` plain steps
     where a textured spot light lights the scene."""
     from .scene_params import SceneParams
@@ -195,7 +277,8 @@ def reference_settings(scene, sensor=0, fine: bool = False) -> dict:
     s = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     if any(light.textured for light in SceneParams.from_scene(scene, s).lights):
         return {"steps": FINE_REFERENCE_STEPS if fine else REFERENCE_STEPS}
-    return dict(FINE_BISECTED_REFERENCE if fine else BISECTED_REFERENCE)
+    return dict(FINE_BISECTED_REFERENCE if fine else
+                LOOSE_BISECTED_REFERENCE if loose else BISECTED_REFERENCE)
 
 
 class Probe:
@@ -204,14 +287,17 @@ class Probe:
     against the exact marcher on those pixels (``pixels``:
     :data:`PROBE_PIXELS` unless given; the marcher
     :func:`reference_settings`, its finer one with ``fine``, or ``steps``
-    plain steps where given).  Its full-image renders are kept
-    (:attr:`kept`, by settings) so that a render asking for one of them
-    again reuses it (:func:`render_auto`)."""
+    plain steps where given).  The reference is marched when the first
+    error is measured: where that first render is a full image,
+    :data:`EDGE_PIXELS` of the pixels (at most a quarter) are taken on its
+    edges and the rest strided, a stratified sample (:class:`Strata`, its
+    weights in every error after; ``loose``: a loose budget's reference);
+    a probe whose first render is partial keeps the strided pixels.  Its
+    full-image renders are kept (:attr:`kept`, by settings) so that a
+    render asking for one of them again reuses it (:func:`render_auto`)."""
 
     def __init__(self, scene, sensor, method: str, base: dict, pixels: int | None = None,
-                 steps: int | None = None, seed=0, fine: bool = False):
-        import mitsuba as mi
-
+                 steps: int | None = None, seed=0, fine: bool = False, loose: bool = False):
         self.scene, self.sensor, self.method, self.seed = scene, sensor, method, seed
         #: one sample per pixel centre, the full image, whatever the render asks
         self.base = {k: v for k, v in base.items()
@@ -219,16 +305,17 @@ class Probe:
         s = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
         self.width, self.height = (int(v) for v in s.film().crop_size())
         self.pixels = probe_pixels(self.width, self.height, pixels or PROBE_PIXELS)
-        self.mask = np.zeros(self.width * self.height, bool)
-        self.mask[self.pixels] = True
+        #: per probe pixel, its weight in an error (None: all alike)
+        self.weights = None
+        #: how many of :attr:`pixels` were added on the edges (:class:`Strata`)
+        self.edge_pixels = 0
+        self._set_mask()
         #: the marcher's settings of the reference and of the finer one
         self.reference_props = ({"steps": steps} if steps else
-                                reference_settings(scene, s, fine))
+                                reference_settings(scene, s, fine, loose and not fine))
         self.fine_props = (self.reference_props if steps or fine else
                            reference_settings(scene, s, True))
-        ref = mi.load_dict({"type": "raymarch", "visibility": "exact",
-                            **self.reference_props})
-        self.reference = self.values(ref, partial=True)
+        self._reference = self._fine = None
         #: (settings key, partial) -> the probe pixels' values of a render
         self._rendered = {}
         self.errors = []
@@ -244,6 +331,34 @@ class Probe:
         #: (:func:`reuses_probe`): a rule's model-chosen setting is then
         #: rendered and measured at no extra cost (:func:`settle`)
         self.reusable = False
+
+    def _set_mask(self) -> None:
+        self.mask = np.zeros(self.width * self.height, bool)
+        self.mask[self.pixels] = True
+
+    @property
+    def reference(self) -> np.ndarray:
+        """The exact marcher's values on the probe pixels (marched once, at
+        first use: the probe's pixels are fixed from then on)."""
+        import mitsuba as mi
+
+        if self._reference is None:
+            self._reference = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
+                                                        **self.reference_props}), partial=True)
+        return self._reference
+
+    def stratify(self, image: np.ndarray) -> None:
+        """Add the edges of ``image`` (H, W, C), a full render of the scene,
+        to the probe pixels (:class:`Strata`); only before the reference is
+        marched."""
+        if self._reference is not None or self.edge_pixels:
+            return
+        extra = min(EDGE_PIXELS, len(self.pixels) // 4)
+        strided = probe_pixels(self.width, self.height, len(self.pixels) - extra)
+        strata = Strata(strided, edge_pixels(image), self.width * self.height, extra)
+        self.edge_pixels = len(strata.pixels) - len(strided)
+        self.pixels, self.weights = strata.pixels, strata.weights
+        self._set_mask()
 
     def predict(self, relmse, how: str) -> None:
         """Record the error the rule expects of the setting it returns."""
@@ -272,16 +387,21 @@ class Probe:
         kw = {"samples": self.mask} if partial else {}
         return integrator.render_layers(self.scene, self.sensor, seed=self.seed, spp=1, **kw)
 
+    def image(self, integrator, result) -> np.ndarray:
+        """The output layer of ``integrator``'s ``result``, (pixels, C)."""
+        img = np.asarray(result[integrator.output], np.float64)
+        return img.reshape(-1, img.shape[-1])
+
     def values(self, integrator, partial=False, result=None) -> np.ndarray:
         """The output layer of ``integrator`` (or of its ``result``) on the
         probe pixels."""
         res = result if result is not None else self.render(integrator, partial)
-        img = np.asarray(res[integrator.output], np.float64)
-        return img.reshape(-1, img.shape[-1])[self.pixels]
+        return self.image(integrator, res)[self.pixels]
 
     def error(self, settings: dict, partial=False, fine=False) -> float:
         """relMSE of the method at ``settings`` on the probe pixels (against
-        :meth:`fine_reference` with ``fine``)."""
+        :meth:`fine_reference` with ``fine``); the first full-image render
+        stratifies the pixels (:meth:`stratify`)."""
         import mitsuba as mi
 
         key = (settings_key(settings), partial)
@@ -290,9 +410,13 @@ class Probe:
             res = self.render(integ, partial)
             if not partial:
                 self.kept[settings_key(settings)] = res
-            self._rendered[key] = self.values(integ, result=res)
+                img = self.image(integ, res)
+                self.stratify(img.reshape(self.height, self.width, -1))
+                self._rendered[key] = img[self.pixels]
+            else:
+                self._rendered[key] = self.values(integ, result=res)
         ref = self.fine_reference() if fine else self.reference
-        e = subset_relmse(self._rendered[key], ref)
+        e = subset_relmse(self._rendered[key], ref, weights=self.weights)
         self.errors.append({**settings, "relmse": e, **({"fine": True} if fine else {})})
         return e
 
@@ -304,7 +428,7 @@ class Probe:
 
         if self.fine_props == self.reference_props:
             return self.reference
-        if getattr(self, "_fine", None) is None:
+        if self._fine is None:
             self._fine = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
                                                    **self.fine_props}), partial=True)
         return self._fine
@@ -394,11 +518,13 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
     if not (isinstance(budget, (int, float)) and budget > 0):
         raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
     t0 = time.perf_counter()
-    probe = Probe(scene, sensor, method, base or {}, seed=seed, fine=budget < TIGHT_BUDGET)
+    probe = Probe(scene, sensor, method, base or {}, seed=seed, fine=budget < TIGHT_BUDGET,
+                  loose=budget >= LOOSE_BUDGET)
     probe.reusable = reusable
     settings = RULES[method].choose(probe, float(budget), FIT[method])
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
                       "auto_probe_pixels": int(len(probe.pixels)),
+                      "auto_probe_edge_pixels": int(probe.edge_pixels),
                       "auto_predicted_relmse": probe.predicted,
                       "auto_predicted_from": probe.predicted_from,
                       "auto_over_budget": probe.over_budget}, probe

@@ -34,13 +34,6 @@ TREE_PROBE = (2.0, 0.5, 2.0)
 #: the most a predicted second probe may cost, in fixed second probes
 #: (:func:`second_probe`): the fixed one and the render after it
 PREDICTION_COST = 2.0
-#: the slice-spacing term's share A/(A+B) of the error at the first probe
-#: setting, its 25th and 75th percentile over the suite's scenes (the
-#: frontier runs the exponents are fitted on, ``python -m
-#: experiments.error_budget --fit-only``): the second probe predicted from
-#: the first probe's error alone must meet the target at both
-#: (:func:`second_probe`)
-PRIOR_SPLIT = (0.2, 0.6)
 
 
 def tree_model(e1: float, e2: float, fit=None, second=None):
@@ -122,38 +115,20 @@ def tree_time(s: float, r: float, fit=None) -> float:
     return al + be / s + ga * r / s
 
 
-def split_choice(e1: float, budget: float, fit=None, split=PRIOR_SPLIT):
-    """(s, rho) of least modelled time whose error meets the target for
-    every split of the probe's error ``e1`` into A = w e1 and B = (1 - w) e1
-    with w in ``split`` (the model is linear in w: its two ends), or None
-    where no candidate does."""
-    best = None
-    for s in TREE_SPACINGS:
-        for r in TREE_DENSITIES:
-            if all(tree_error(w * e1, (1.0 - w) * e1, s, r, fit) <= target_of(budget)
-                   for w in split):
-                t = tree_time(s, r, fit)
-                if best is None or t < best[0]:
-                    best = (t, s, r)
-    return None if best is None else best[1:]
-
-
 def second_probe(e1: float, budget: float, fit=None) -> tuple[float, float]:
     """(s, rho) of the tree's second probe after the first missed the target
-    with ``e1``: the setting predicted from ``e1`` alone, its split between
-    the two terms anywhere in the suite's range (:data:`PRIOR_SPLIT`,
-    :func:`split_choice`), kept when it meets the target, where the time
-    model says it costs at most :data:`PREDICTION_COST` fixed second probes
-    (s0, 4 rho0) -- what the fixed one and the render after it would cost;
-    otherwise that fixed one, which separates the two terms with a coarse
-    render (a prediction from one error far over the target asks for the
-    finest setting of both knobs: several times the cost of the setting the
-    two terms, once separated, call for)."""
+    with ``e1``: the setting predicted from ``e1`` alone (both terms given
+    all of it), kept when it meets the target, where the time model says it
+    costs at most :data:`PREDICTION_COST` fixed second probes (s0, 4 rho0)
+    -- what the fixed one and the render after it would cost; otherwise
+    that fixed one, which separates the two terms with a coarse render (a
+    prediction from one error far over the target asks for the finest
+    setting of both knobs: several times the cost of the setting the two
+    terms, once separated, call for)."""
     s0, _, r1 = TREE_PROBE
-    guess = split_choice(e1, budget, fit)
-    if guess is not None and \
-            tree_time(*guess, fit) <= PREDICTION_COST * tree_time(s0, r1, fit):
-        return guess
+    s2, r2 = tree_choice_of(e1, e1, budget, fit)
+    if tree_time(s2, r2, fit) <= PREDICTION_COST * tree_time(s0, r1, fit):
+        return s2, r2
     return s0, r1
 
 
