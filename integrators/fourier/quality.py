@@ -19,7 +19,7 @@ the plugin registers :data:`FILTER_RULE`.
 """
 from __future__ import annotations
 
-from ..core.quality_auto import Probe, QualityRule, settle, target_of
+from ..core.quality_auto import Probe, QualityRule, meets, settle, target_of
 from .basis import DEFAULT_M
 
 
@@ -100,12 +100,12 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
         return {}
     first = filter_probe(probe.diagonal)[0]
     e1 = probe.error(first)
-    if e1 <= target_of(budget):
+    if meets(probe, e1, budget):
         probe.predict(e1, "measured")
         return first
     m2 = predicted_coefficients(e1, budget, fit)
     e2 = probe.error({"coefficients": m2})
-    if e2 <= target_of(budget):
+    if meets(probe, e2, budget):
         probe.predict(e2, "measured")
         return {"coefficients": m2}
     settings = filter_settings(e1, e2, budget, fit, m2, safe=True)   # a guess: not below 32

@@ -2,12 +2,13 @@
 light rays): relMSE = A·(s/s₀)^a + B·(ρ/ρ₀)^-b in the slice spacing s [px]
 and the light-ray density ρ (light rays per slice over the image diagonal in
 pixels; the light-ray term is the tree's error floor at fixed light rays);
-the probe renders (s₀, ρ₀), then -- unless that meets the target -- a
-second setting: the one the model predicts from that error alone (A = B =
-its error, a conservative split) where that is cheap, else (s₀, 4ρ₀), which
-separates A and B (:func:`second_probe`); the second is the answer when it
-meets the target, otherwise the model through both chooses; time ~ α + β/s
-+ γ·ρ/s (fitted).
+the probe renders (s₀, ρ₀), then -- unless its measured error meets the
+budget (:func:`~integrators.core.quality_auto.meets`) -- a second
+setting: the one the model predicts from that error alone, whichever term
+holds it (the worst split of A + B), where that is cheap, else (s₀, 4ρ₀),
+which separates A and B (:func:`second_probe`); the second is the answer
+when it meets the budget, otherwise the model through both chooses; time
+~ α + β/s + γ·ρ/s (fitted).
 
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
 the plugin registers :data:`TREE_RULE`.
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-from ..core.quality_auto import Probe, QualityRule, settle, target_of
+from ..core.quality_auto import Probe, QualityRule, meets, settle, target_of
 from ..epipolar.light_rays.directional import MIN_AUTO_LIGHT_RAYS
 
 
@@ -117,19 +118,37 @@ def tree_time(s: float, r: float, fit=None) -> float:
 
 def second_probe(e1: float, budget: float, fit=None) -> tuple[float, float]:
     """(s, rho) of the tree's second probe after the first missed the target
-    with ``e1``: the setting predicted from ``e1`` alone (both terms given
-    all of it), kept when it meets the target, where the time model says it
-    costs at most :data:`PREDICTION_COST` fixed second probes (s0, 4 rho0)
+    with ``e1``: the setting predicted from ``e1`` alone (whichever term
+    holds it, :func:`worst_split_choice`), kept when its measured error
+    meets the budget (:func:`~integrators.core.quality_auto.meets`), where
+    the time model says it costs at most :data:`PREDICTION_COST` fixed second probes (s0, 4 rho0)
     -- what the fixed one and the render after it would cost; otherwise
     that fixed one, which separates the two terms with a coarse render (a
     prediction from one error far over the target asks for the finest
     setting of both knobs: several times the cost of the setting the two
     terms, once separated, call for)."""
     s0, _, r1 = TREE_PROBE
-    s2, r2 = tree_choice_of(e1, e1, budget, fit)
-    if tree_time(s2, r2, fit) <= PREDICTION_COST * tree_time(s0, r1, fit):
-        return s2, r2
+    guess = worst_split_choice(e1, budget, fit)
+    if guess is not None and \
+            tree_time(*guess, fit) <= PREDICTION_COST * tree_time(s0, r1, fit):
+        return guess
     return s0, r1
+
+
+def worst_split_choice(e1: float, budget: float, fit=None):
+    """(s, rho) of least modelled time that meets the target however the
+    probe's error ``e1`` splits between the two terms (A + B = e1; the model
+    is linear in the split, so its two ends: all of it in either term), or
+    None where no candidate does."""
+    best = None
+    for s in TREE_SPACINGS:
+        for r in TREE_DENSITIES:
+            if max(tree_error(e1, 0.0, s, r, fit), tree_error(0.0, e1, s, r, fit)) \
+                    <= target_of(budget):
+                t = tree_time(s, r, fit)
+                if best is None or t < best[0]:
+                    best = (t, s, r)
+    return None if best is None else best[1:]
 
 
 def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
@@ -139,7 +158,7 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
     choice of the model through both."""
     first = tree_probe(probe.diagonal)[0]
     e1 = probe.error(first)
-    if e1 <= target_of(budget):
+    if meets(probe, e1, budget):
         probe.predict(e1, "measured")
         return first
     s2, r2 = second_probe(e1, budget, fit)
@@ -148,7 +167,7 @@ def choose_tree(probe: Probe, budget: float, fit=None) -> dict:
         second = tree_probe(probe.diagonal)[1]
         s2, r2 = TREE_PROBE[0], TREE_PROBE[2]
     e2 = probe.error(second)
-    if e2 <= target_of(budget):
+    if meets(probe, e2, budget):
         probe.predict(e2, "measured")
         return second
     A, B = tree_model(e1, e2, fit, (s2, r2))
