@@ -211,15 +211,12 @@ def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE) -> np.ndarray:
     and shadow edges, where a method's error concentrates."""
     Y = np.asarray(image, np.float64).mean(axis=-1)
     floor = 1e-2 * max(float(Y.mean()), 1e-30)
+    down = np.abs(Y[1:] - Y[:-1]) / (Y[1:] + Y[:-1] + floor)            # each pixel and the next row's
+    right = np.abs(Y[:, 1:] - Y[:, :-1]) / (Y[:, 1:] + Y[:, :-1] + floor)
     score = np.zeros_like(Y)
-    for a, b in ((Y[1:, :], Y[:-1, :]), (Y[:, 1:], Y[:, :-1])):
-        c = np.abs(a - b) / (a + b + floor)
-        if a.shape[0] != Y.shape[0]:
-            score[1:, :] = np.maximum(score[1:, :], c)
-            score[:-1, :] = np.maximum(score[:-1, :], c)
-        else:
-            score[:, 1:] = np.maximum(score[:, 1:], c)
-            score[:, :-1] = np.maximum(score[:, :-1], c)
+    for dst, c in ((score[1:], down), (score[:-1], down), (score[:, 1:], right),
+                   (score[:, :-1], right)):
+        np.maximum(dst, c, out=dst)
     n = max(int(round(share * Y.size)), 1)
     flat = score.ravel()
     top = np.argpartition(-flat, n - 1)[:n]
