@@ -92,6 +92,10 @@ def test_report_launches_counts_every_kernel_of_the_render(method):
     assert {"validate", "capture", "compose"} <= set(per_stage)
     assert sum(per_stage.values()) == log.launched, per_stage
     assert not dr.flag(dr.JitFlag.KernelHistory)
+    # and their execution time, per stage that launched any
+    kernel_ms = result.stats["kernel_ms"]
+    assert set(kernel_ms) == set(per_stage)
+    assert all(v >= 0 for v in kernel_ms.values()) and sum(kernel_ms.values()) > 0
 
 
 def test_without_report_launches_the_history_is_the_callers():

@@ -121,6 +121,8 @@ class RenderRecord:
     march_later: list = field(default_factory=list)
     #: with ``report_launches``: JIT kernels launched per stage (else None)
     launches: dict | None = None
+    #: with ``report_launches``: their execution time per stage [ms]
+    kernel_ms: dict = field(default_factory=dict)
     #: the stage running (what launches outside every stage count under)
     stage: str = "other"
 
@@ -157,10 +159,13 @@ def warn_every_pixel_marched(method: str, why: str, fix: str) -> None:
 
 
 def count_launches(record: RenderRecord, stage: str) -> None:
-    """Charge the JIT kernels launched since the last count to ``stage``."""
-    n = len(drain_jit_kernels())
-    if n:
-        record.launches[stage] = record.launches.get(stage, 0) + n
+    """Charge the JIT kernels launched since the last count, and their
+    execution time, to ``stage``."""
+    kernels = drain_jit_kernels()
+    if kernels:
+        record.launches[stage] = record.launches.get(stage, 0) + len(kernels)
+        record.kernel_ms[stage] = record.kernel_ms.get(stage, 0.0) + sum(
+            float(k.get("execution_time", 0.0)) for k in kernels)
 
 
 #: Dr.Jit's expand threshold during a render: 0, reductions with local
@@ -563,6 +568,7 @@ class EpiscatterIntegrator(mi.SamplingIntegrator):
         if record.launches is not None:
             count_launches(record, "other")
             record.stats["launches"] = dict(record.launches)
+            record.stats["kernel_ms"] = dict(record.kernel_ms)
         return RenderResult(layers=layers, timings=dict(record.timings),
                             stats=dict(record.stats), samples=computed, capture=cap,
                             L_scat=L_scat, frame_state=record.frame_state)
