@@ -80,8 +80,8 @@ PROBE_PIXELS = 1200
 #: (five probe settings each, against the 2,048-step reference): 900
 #: strided + 300 edge pixels misjudge the full image's relMSE by a median
 #: 1.09x (90th percentile 1.47x) and underestimate it by over 2x in 2 of 100
-#: cases, 1,200 strided ones by 1.25x (3.0x) and in 14 -- down to 1/100 on
-#: a spot's thin shafts
+#: cases, 1,200 strided ones by 1.22x (3.8x) and in 21 -- down to 1/100 on
+#: a spot's thin shafts (``python -m experiments.probe_strata``)
 EDGE_SHARE = 0.05
 EDGE_PIXELS = 300
 #: the exact marcher the probe's errors are measured against
