@@ -326,6 +326,32 @@ def write_csv(path, rows: list[dict]) -> None:
             w.writerow({k: _cell(v) for k, v in r.items() if k in columns})
 
 
+def held_out_main(doc: str, seeds, out, run, table, argv=None):
+    """The command line of an experiment over held-out seeds
+    (``--size WxH``, ``--seeds a,b,...``, ``--out``): ``run(seeds, width,
+    height)`` -> rows, written to ``runs.csv`` (rows as they are) and
+    ``table(rows, width, height)`` to ``table.md``; (rows, folder)."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--size", default="320x240")
+    ap.add_argument("--seeds", default=",".join(map(str, seeds)))
+    ap.add_argument("--out", default=str(out))
+    args = ap.parse_args(argv)
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    import integrators  # noqa: F401  (registers the plugins)
+
+    width, height = (int(v) for v in args.size.split("x"))
+    rows = run([int(s) for s in args.seeds.split(",")], width, height)
+    folder = Path(args.out)
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "runs.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    (folder / "table.md").write_text(table(rows, width, height))
+    return rows, folder
+
+
 def write_text(path, text: str) -> None:
     with open(path, "w") as f:
         f.write(text.rstrip() + "\n")

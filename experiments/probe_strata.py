@@ -15,8 +15,6 @@ Writes ``results/probe_strata/``: ``runs.csv``, ``table.md``.
 """
 from __future__ import annotations
 
-import argparse
-import csv
 import json
 import math
 from pathlib import Path
@@ -103,25 +101,10 @@ def table(rows, width: int, height: int) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size", default="320x240")
-    ap.add_argument("--seeds", default=",".join(map(str, SEEDS)))
-    ap.add_argument("--out", default=str(OUT))
-    args = ap.parse_args(argv)
-    import mitsuba as mi
-    mi.set_variant("llvm_ad_rgb")
-    import integrators  # noqa: F401  (registers the plugins)
+    from . import common as c
 
-    width, height = (int(v) for v in args.size.split("x"))
-    rows = run([int(s) for s in args.seeds.split(",")], width, height)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "runs.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    (out / "table.md").write_text(table(rows, width, height))
-    print(table(rows, width, height).split("\n\nPer case")[0])
+    rows, out = c.held_out_main(__doc__, SEEDS, OUT, run, table, argv)
+    print((out / "table.md").read_text().split("\n\nPer case")[0])
     print(f"wrote {out}")
     return 0 if all(math.isfinite(r["stratified"]) for r in rows) else 1
 
