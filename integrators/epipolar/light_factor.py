@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.light_transport import scalar
 from ..core.opaque import scalar_u32
+from ..core.reductions import UNSHARED
 from .light_rays.directional import LIGHT_SIDE_RANGE, LightRays
 from .light_rays.layout import LOWEST_LIGHT_SIDE, covered_depth, finite_or_inf, lowest_or_none
 from .queries import EpipolarQueries, frame_memo
@@ -86,8 +87,8 @@ def light_ray_channels(values: list, n: int, d: int) -> mi.TensorXf:
     lane = dr.arange(mi.UInt32, n * d)
     for c, v in enumerate(values):
         # each entry written once: an add to the zeros, all channels in one
-        # kernel (a plain scatter would launch the last one first)
-        dr.scatter_reduce(dr.ReduceOp.Add, out, v, lane * C + c)
+        # kernel (a plain scatter would launch the last one first), no atomics
+        dr.scatter_reduce(dr.ReduceOp.Add, out, v, lane * C + c, mode=UNSHARED)
     return mi.TensorXf(out, shape=(n, d, C))
 
 

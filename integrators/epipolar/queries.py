@@ -228,7 +228,13 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     alpha, beta = direction_to_alpha_beta(frame, cap.omega)
     ring = in_ring(beta, ring_deg) & (cap.d > 0)
     rest = (cap.d > 0) & ~ring
-    dr.schedule(alpha, beta, rest)       # one kernel with the ring's mask
+    # t_near and γ_end are the sample's: made here, in sample order, and
+    # gathered once each by the sorted queries (not the ray's origin and
+    # length, four gathers in sweep order)
+    pinhole = mi.Point3f(point(params.camera.origin))
+    t_near_s = dr.norm(mi.Vector3f(cap.o - pinhole))
+    gamma_end_s = end_gamma(frame, beta, t_near_s + cap.d)
+    dr.schedule(alpha, beta, rest, t_near_s, gamma_end_s)   # one kernel with the ring's mask
     if interpolate:
         # the slices some sample is nearest to (_slice_shares), in that kernel
         used = dr.zeros(mi.Bool, slices.count)
@@ -252,9 +258,8 @@ def assign_queries(params, frame: EpipolarFrame, slices: Slices, cap: CameraCapt
     if weight is not None:
         weight = dr.gather(mi.Float, weight, order)
     slice_index, r_count, row, col, widest = _rows(slices, k, counts)
-    pinhole = mi.Point3f(point(params.camera.origin))
-    t_near = dr.norm(mi.Vector3f(dr.gather(mi.Point3f, cap.o, sample) - pinhole))
-    gamma_end = end_gamma(frame, b, t_near + dr.gather(mi.Float, cap.d, sample))
+    t_near = dr.gather(mi.Float, t_near_s, sample)
+    gamma_end = dr.gather(mi.Float, gamma_end_s, sample)
     alpha_rows = floats(np.asarray(slices.alpha)[slice_index])
     q = EpipolarQueries(frame, slices, len(slice_index), widest,
                         uints(slice_index), alpha_rows, r_count, sample, row, col, b, gamma_end,

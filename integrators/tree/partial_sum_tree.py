@@ -90,6 +90,7 @@ import numpy as np
 from rectify._dr import aligned
 
 from ..core.opaque import Divisor, opaque_scalar
+from ..core.reductions import UNSHARED, block_counts
 from ..epipolar.blockers import BlockerModes
 from ..epipolar.factor_layout import factor_layout
 
@@ -277,10 +278,12 @@ def _prepare(D, S_modes, A, B, L, r_count, d_count) -> _Problem:
     acts = (g < d_cnt.at(s)) & (beta < r_cnt.at(s))
     weight = dr.select(acts, weight, 0.0)
     beta = dr.select(weight != 0, beta, r_o)
-    # the modes and their count per slice, one kernel
-    updates = dr.zeros(jt.Int, n)
-    dr.scatter_reduce(dr.ReduceOp.Add, updates, jt.Int(weight != 0), s)
-    dr.eval(beta, weight, updates)
+    # the modes and, per slice, the count of those acting: a block sum over
+    # the slice's d·M contiguous modes (an atomic count per slice serialises
+    # the lanes of a packet, which all hit the same slice)
+    acting = jt.Int(weight != 0)
+    dr.eval(beta, weight, acting)
+    updates = block_counts(acting, d * M, n)
     Lf = None if L is None else _flat(L, jt.Float)
     return _Problem(lay, _flat(D, jt.Float), beta, weight, _flat(A, jt.Float),
                     _flat(B, jt.Float), Lf, r_cnt, d_cnt, d_o, r_o, updates)
@@ -332,14 +335,21 @@ def _depth_split(p: _Problem, s, beta, d_s):
     return k0, Dc - jt.Float(k0)
 
 
-def _accumulate(p: _Problem, out, s, beta, comps, q, active=True):
-    """out[s, β, c] += Σ_{i in chunk} B_i(β) q_i."""
+def _accumulate(p: _Problem, out, s, beta, comps, q, active=True, add=True):
+    """out[s, β, c] += Σ_{i in chunk} B_i(β) q_i; with ``add=False`` the
+    slot is written, not added to: the first chunk of components, whose
+    slots nothing wrote before (each lane owns its slots, so a plain
+    scatter: an atomic add serialises the 16 distinct slots of a packet)."""
     Bv = _view_factor(p, s, beta, comps)
     per_channel = {}
     for (c, _), b, qi in zip(comps, Bv, q):
         per_channel[c] = per_channel.get(c, 0) + b * qi
     for c, v in per_channel.items():
-        dr.scatter_reduce(dr.ReduceOp.Add, out, v, (s * p.r_o + beta) * p.lay.C + c, active)
+        slot = (s * p.r_o + beta) * p.lay.C + c
+        if add:
+            dr.scatter_reduce(dr.ReduceOp.Add, out, v, slot, active, mode=UNSHARED)
+        else:
+            dr.scatter(out, v, slot, active)
 
 
 # --------------------------------------------------------------------------
@@ -431,7 +441,8 @@ def _tree_index(i, k, K):
 
 
 @dr.syntax
-def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_size, out):
+def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_size, out,
+                  add):
     """INTEGRATESLICE (Fig. 6) for the slices ``slices``, components ``comps``.
 
     Node i (1-based) of the Fenwick tree [Fenwick 1994] holds Σ b[γ] over γ
@@ -500,7 +511,7 @@ def _sweep_kernel(p: _Problem, slices, upd: _Updates, comps, tree_size, leaf_siz
         a0 = _leaf(p, slices, k0, comps)
         fv = dr.select(d_s > 0, f * vis[k0], 0.0)
         q = [q[k] + fv * a0[k] for k in range(K)]
-        _accumulate(p, out, slices, beta, comps, q)
+        _accumulate(p, out, slices, beta, comps, q, add=add)
         beta += 1
 
 
@@ -510,10 +521,10 @@ def _run_tree(p: _Problem, slices: jt.Int, counts: np.ndarray, out: jt.Float):
     per_leaf = (LOCAL_BUDGET - leaf_size) // (p.lay.d + 1)
     if per_leaf < 1:
         raise ValueError(f"d = {p.lay.d} light rays do not fit in lane-local memory")
-    for comps in _components(p.lay, per_leaf):
+    for chunk, comps in enumerate(_components(p.lay, per_leaf)):
         tree_size = _local_size((p.lay.d + 1) * len(comps))
         _sweep_kernel(p, slices, upd, comps, min(tree_size, LOCAL_ARRAY_LIMIT),
-                      leaf_size, out)
+                      leaf_size, out, chunk > 0)
         dr.eval(out)
 
 
@@ -537,12 +548,12 @@ def _closed_form_shared(p: _Problem, slices: jt.Int, out: jt.Float):
     k0, f = _depth_split(p, s, beta, p.d_count.at(s))
     q = [dr.lerp(dr.gather(jt.Float, c_k, k0), dr.gather(jt.Float, c_k, k0 + 1), f)
          for c_k in cum]
-    _accumulate(p, out, s, beta, comps, q, active)
+    _accumulate(p, out, s, beta, comps, q, active, add=False)
     dr.eval(out)
 
 
 @dr.syntax
-def _closed_form_local_kernel(p: _Problem, slices, comps, size, out):
+def _closed_form_local_kernel(p: _Problem, slices, comps, size, out, add):
     """Per-slice cumulative sums C(k) = Σ_{γ<k} a[γ] in lane-local memory,
     then out = Δγ Σ B lerp(C(k0), C(k0+1), f) for every β of the slice."""
     K = len(comps)
@@ -565,7 +576,7 @@ def _closed_form_local_kernel(p: _Problem, slices, comps, size, out):
         k0, f = _depth_split(p, slices, beta, d_s)
         k1 = dr.minimum(k0 + 1, d_s)
         q = [dr.lerp(cum[k0 * K + k], cum[k1 * K + k], f) for k in range(K)]
-        _accumulate(p, out, slices, beta, comps, q)
+        _accumulate(p, out, slices, beta, comps, q, add=add)
         beta += 1
 
 
@@ -575,9 +586,9 @@ def _run_closed_form(p: _Problem, slices: jt.Int, out: jt.Float):
     per_leaf = LOCAL_BUDGET // (p.lay.d + 1)
     if per_leaf < 1:
         raise ValueError(f"d = {p.lay.d} light rays do not fit in lane-local memory")
-    for comps in _components(p.lay, per_leaf):
+    for chunk, comps in enumerate(_components(p.lay, per_leaf)):
         size = min(_local_size((p.lay.d + 1) * len(comps)), LOCAL_ARRAY_LIMIT)
-        _closed_form_local_kernel(p, slices, comps, size, out)
+        _closed_form_local_kernel(p, slices, comps, size, out, chunk > 0)
         dr.eval(out)
 
 

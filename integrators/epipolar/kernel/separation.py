@@ -23,6 +23,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...core.opaque import Divisor, floats, opaque_scalar, scalar_u32
+from ...core.reductions import UNSHARED
 from ..light_factor import gray, light_side_extinction, light_side_gains, lowest_light_side
 from ..light_rays.directional import LIGHT_SIDE_RANGE
 from ..queries import frame_memo, frame_memo_get
@@ -157,12 +158,13 @@ def separate_kernel(separation, params, queries, rays, rank: int, tol: float, po
     # every channel's N terms: one pass of the Nyström loop, in the kernel
     # that adds them into A (below)
     # each entry written once: an add to the zeros (a plain scatter would
-    # launch the pending one to the same array first, a kernel per term)
+    # launch the pending one to the same array first, a kernel per term),
+    # without atomics (no two lanes share an entry)
     for c, (kern, (a_terms, b_terms)) in enumerate(zip(kernels, terms)):
         for i in range(kern.N):
             term = scalar_u32(c * N + i)
-            dr.scatter_reduce(dr.ReduceOp.Add, A, a_terms[i], lane_a + term)
-            dr.scatter_reduce(dr.ReduceOp.Add, B, b_terms[i], lane_b + term)
+            dr.scatter_reduce(dr.ReduceOp.Add, A, a_terms[i], lane_a + term, mode=UNSHARED)
+            dr.scatter_reduce(dr.ReduceOp.Add, B, b_terms[i], lane_b + term, mode=UNSHARED)
             # whether some query's b_i is not 0, in the kernel that writes B
             dr.scatter_reduce(dr.ReduceOp.Max, used, mi.UInt32(b_terms[i] != 0.0), term)
     d = rays.d
@@ -344,10 +346,12 @@ class DirectionalSeparation:
         gamma = rays.position(s, g, 0.0)
         h_ref = rays.h_ref
         h_lo = dr.min(h_ref)
-        # the rows' side at each lane of its row (as a kernel over the rows
-        # computes it: ``lanes`` n), so that the checked light rays are one
-        # kernel; each row's weights are written to the buffer with its sums
-        # (the same value from every lane of the row: Max keeps it exactly)
+        # the rows' side at each lane of its row, b_i as the sweep evaluates
+        # them (``lanes``: the frame's queries: tabulated where the sweep's
+        # are, not a Nyström sum per lane), so that the checked light rays
+        # are one kernel; each row's weights are written to the buffer with
+        # its sums (the same value from every lane of the row: Max keeps it
+        # exactly)
         r_s = dr.gather(mi.UInt32, r_count, s)
         used = r_s > 0
         b_s = dr.gather(mi.UInt32, begin, s)
@@ -366,7 +370,7 @@ class DirectionalSeparation:
             L = light_side_extinction(kern.sigma_t, dr.gather(mi.Float, rays.h, ray), h_ref_s)
             a_terms = kern.a_terms(gamma, dr.width(gamma))
             for j, (beta, tan_s) in enumerate(zip(betas, tans)):
-                b_terms = kern.b_terms(tan_s, lanes=n)
+                b_terms = kern.b_terms(tan_s, lanes=queries.count)
                 approx = dr.zeros(mi.Float, dr.width(gamma))
                 for i in range(kern.N):
                     approx += a_terms[i] * b_terms[i]
