@@ -749,3 +749,24 @@ def test_the_phase_table_is_read_once_per_phase_function():
     np.testing.assert_allclose(changed, hg, rtol=1e-4)
     assert not np.allclose(changed, first)
     dr.eval()
+
+
+@pytest.mark.parametrize("sigma_t", [0.3, {"type": "rgb", "value": [0.2, 0.3, 0.5]}])
+def test_point_light_factor_equals_the_sub_ray_mean(sigma_t):
+    """A point light's per-light-ray factor is its colour and the
+    light-side extinction without asking the light along every sub-ray:
+    equal to the sub-ray mean (the spot light's path) to float rounding,
+    the same lit sub-rays, and a black light lights none."""
+    from integrators.epipolar import local_light_factor as llf
+    from integrators.epipolar.light_rays.local import local_light_ray_grid
+    light = {"type": "point", "position": [0.3, 1.6, 0.2], "intensity": {"type": "rgb", "value": [3.0, 2.0, 1.0]}}
+    params, cap, frame, sl, q = setup(light, sigma_t=sigma_t)
+    rays = local_light_ray_grid(params, q, 64)
+    fast = llf._point_light_factor(params, q, rays, 4)
+    slow = llf._sub_ray_factor(params, q, rays, 4, 0)
+    np.testing.assert_allclose(np.array(fast[0]), np.array(slow[0]), rtol=2e-6, atol=0)
+    np.testing.assert_allclose(np.array(fast[1]), np.array(slow[1]), rtol=2e-6)
+    np.testing.assert_array_equal(np.array(fast[2]), np.array(slow[2]))
+    dark = setup({**light, "intensity": 0.0}, sigma_t=sigma_t)
+    lit = llf._point_light_factor(dark[0], dark[4], local_light_ray_grid(dark[0], dark[4], 64), 4)[2]
+    assert not np.array(lit).any()

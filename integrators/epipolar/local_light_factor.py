@@ -41,6 +41,30 @@ def _light_colour(params, frame) -> mi.Color3f:
     return light_intensity(params, frame, vector(axis))
 
 
+def _point_light_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int):
+    """:func:`light_ray_factor` of a point light, whose intensity is the
+    same toward every direction: Ī is its colour, no sub-ray asked for it
+    (the same factor to float rounding, without the sub-rays' light
+    queries and their mean); ``lit``: every sub-ray of an existing light
+    ray, where the light shines at all."""
+    frame = queries.frame
+    colour = _light_colour(params, frame)          # one lane: read where it is used
+    lit = rays.used(k) & (dr.max(colour) > 0.0)
+    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+    depth = scalar(frame.light_distance) - rays.r_in
+    exists = rays.used(1)                          # 0 on the padding, as the mean has it
+    if _channels(params) == 1:
+        values = [dr.select(exists, light_side_extinction(sigma_t[0], depth,
+                                                          c=LOCAL_LIGHT_SIDE_RANGE), 0.0)]
+    else:
+        values = [dr.select(exists, colour[ch] * light_side_extinction(
+            sigma_t[ch], depth, c=LOCAL_LIGHT_SIDE_RANGE), 0.0) for ch in range(3)]
+        colour = mi.Color3f(1.0)
+    L = light_ray_channels(values, queries.n, rays.d)
+    dr.eval(L.array, lit)
+    return L, colour, lit
+
+
 def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int = 1,
                      seed: int = 0):
     """(L, colour, lit): the tree's per-light-ray factor (§6 textured light)
@@ -52,7 +76,17 @@ def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: 
     (same ``seed``: the blockers' sub-rays; prefilters the texture and the
     cone's edge); ``colour``: the light's intensity along its axis when L
     is grey (L then holds the fall-off alone), else 1; ``lit`` (n·d·k,):
-    existing sub-rays carrying light."""
+    existing sub-rays carrying light.  A point light's Ī is its colour
+    (:func:`_point_light_factor`); a spot light's is averaged over the
+    sub-rays (:func:`_sub_ray_factor`)."""
+    if params.light.kind == "point":
+        return _point_light_factor(params, queries, rays, k)
+    return _sub_ray_factor(params, queries, rays, k, seed)
+
+
+def _sub_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int, seed: int):
+    """:func:`light_ray_factor` with Ī averaged over the ``k`` sub-rays of
+    each light ray (Mitsuba's intensity toward each)."""
     frame = queries.frame
     used = rays.used(k)                       # sub-rays of existing light rays
     dr.schedule(used)                         # with the sub-rays' kernel
