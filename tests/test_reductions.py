@@ -68,3 +68,21 @@ def test_the_tree_sweep_writes_its_sums_without_atomics():
     whole = [k for k in log.entries if k.get("size") == n * d]
     for k in whole:
         assert "atomic_local" not in k["ir"], "the modes' count per slice by atomics"
+
+
+def test_the_closed_form_sweep_is_one_kernel_in_colour():
+    """Slices without blockers (the closed form, A shared by the slices):
+    the three channels' sums are one kernel (a plain scatter per channel
+    would launch one kernel each)."""
+    from integrators.tree.partial_sum_tree import integrate_slices
+    rng = np.random.default_rng(6)
+    n, d, r, N = 5, 16, 7, 2
+    D = rng.uniform(0, d, (n, r)).astype(np.float32)
+    S = np.full((n, d), np.inf, np.float32)                  # nothing blocks
+    A = rng.uniform(0, 1, (1, d, 3, N)).astype(np.float32)
+    B = rng.uniform(-1, 1, (n, r, 3, N)).astype(np.float32)
+    with kernel_log() as log:
+        out = integrate_slices(D, S, A, B)
+        dr.eval(out.array)
+    wide = [k for k in log.entries if k.get("size") == n * r]
+    assert len(wide) == 1, [k.get("size") for k in log.entries]

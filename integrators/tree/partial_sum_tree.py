@@ -336,10 +336,11 @@ def _depth_split(p: _Problem, s, beta, d_s):
 
 
 def _accumulate(p: _Problem, out, s, beta, comps, q, active=True, add=True):
-    """out[s, β, c] += Σ_{i in chunk} B_i(β) q_i; with ``add=False`` the
-    slot is written, not added to: the first chunk of components, whose
-    slots nothing wrote before (each lane owns its slots, so a plain
-    scatter: an atomic add serialises the 16 distinct slots of a packet)."""
+    """out[s, β, c] += Σ_{i in chunk} B_i(β) q_i, without atomics (each lane
+    owns its slots: an atomic add serialises the 16 distinct slots of a
+    packet); with ``add=False`` the slot is written, not added to -- the
+    first chunk of components inside a symbolic loop (one kernel whatever
+    it scatters), whose slots nothing wrote before."""
     Bv = _view_factor(p, s, beta, comps)
     per_channel = {}
     for (c, _), b, qi in zip(comps, Bv, q):
@@ -548,7 +549,9 @@ def _closed_form_shared(p: _Problem, slices: jt.Int, out: jt.Float):
     k0, f = _depth_split(p, s, beta, p.d_count.at(s))
     q = [dr.lerp(dr.gather(jt.Float, c_k, k0), dr.gather(jt.Float, c_k, k0 + 1), f)
          for c_k in cum]
-    _accumulate(p, out, s, beta, comps, q, active, add=False)
+    # added, not written: a second plain scatter to ``out`` (a second
+    # channel) would launch the first one's kernel first
+    _accumulate(p, out, s, beta, comps, q, active)
     dr.eval(out)
 
 
