@@ -50,19 +50,13 @@ def _point_light_factor(params, queries: EpipolarQueries, rays: LocalLightRays, 
     frame = queries.frame
     colour = _light_colour(params, frame)          # one lane: read where it is used
     lit = rays.used(k) & (dr.max(colour) > 0.0)
-    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-    depth = scalar(frame.light_distance) - rays.r_in
     exists = rays.used(1)                          # 0 on the padding, as the mean has it
     if _channels(params) == 1:
-        values = [dr.select(exists, light_side_extinction(sigma_t[0], depth,
-                                                          c=LOCAL_LIGHT_SIDE_RANGE), 0.0)]
+        intensity = [dr.select(exists, 1.0, 0.0)]
     else:
-        values = [dr.select(exists, colour[ch] * light_side_extinction(
-            sigma_t[ch], depth, c=LOCAL_LIGHT_SIDE_RANGE), 0.0) for ch in range(3)]
+        intensity = [dr.select(exists, colour[ch], 0.0) for ch in range(3)]
         colour = mi.Color3f(1.0)
-    L = light_ray_channels(values, queries.n, rays.d)
-    dr.eval(L.array, lit)
-    return L, colour, lit
+    return _with_light_side(params, queries, rays, intensity, lit), colour, lit
 
 
 def light_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: int = 1,
@@ -101,8 +95,6 @@ def _sub_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: i
     I_sum = dr.zeros(mi.Color3f, n_rays)
     dr.scatter_reduce(dr.ReduceOp.Add, I_sum, I, idx // k)
     I_mean = I_sum * (1.0 / k)
-    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
-    depth = scalar(frame.light_distance) - rays.r_in
     if _channels(params) == 1:
         colour = _light_colour(params, frame)
         if dr.width(idx):       # written by the lit flags' kernel (one lane of it)
@@ -114,12 +106,22 @@ def _sub_ray_factor(params, queries: EpipolarQueries, rays: LocalLightRays, k: i
         intensity = np.array([float(colour[i][0]) for i in range(3)])
         c = int(np.argmax(intensity))
         scale = 1.0 / intensity[c] if intensity[c] > 0 else 0.0
-        values = [I_mean[c] * scalar(scale) * light_side_extinction(sigma_t[0], depth,
-                                                                    c=LOCAL_LIGHT_SIDE_RANGE)]
+        mean = [I_mean[c] * scalar(scale)]
     else:
-        values = [I_mean[ch] * light_side_extinction(sigma_t[ch], depth, c=LOCAL_LIGHT_SIDE_RANGE)
-                  for ch in range(3)]
+        mean = [I_mean[ch] for ch in range(3)]
         colour = mi.Color3f(1.0)
+    return _with_light_side(params, queries, rays, mean, lit), colour, lit
+
+
+def _with_light_side(params, queries: EpipolarQueries, rays: LocalLightRays, intensity: list,
+                     *also) -> mi.TensorXf:
+    """L = Ī_ch · e^{-σt,ch (L − r_in)} per light ray, evaluated (with
+    ``also``): ``intensity`` one Float (grey σt: σt[0]) or one per colour
+    channel."""
+    sigma_t = np.asarray(params.medium.sigma_t, np.float64)
+    depth = scalar(queries.frame.light_distance) - rays.r_in
+    values = [i * light_side_extinction(sigma_t[ch], depth, c=LOCAL_LIGHT_SIDE_RANGE)
+              for ch, i in enumerate(intensity)]
     L = light_ray_channels(values, queries.n, rays.d)
-    dr.eval(L.array, lit)
-    return L, colour, lit
+    dr.eval(L.array, *also)
+    return L
