@@ -84,6 +84,16 @@ PROBE_PIXELS = 1200
 #: a spot's thin shafts (``python -m experiments.probe_strata``)
 EDGE_SHARE = 0.05
 EDGE_PIXELS = 300
+#: the edge stratum's size at most: the :data:`EDGE_SHARE` of a 320x240
+#: image, so that its :data:`EDGE_PIXELS` samples keep their density on
+#: larger images.  At 640x480 a 5 % stratum (15,360 pixels) is hit 2.4
+#: times on average by 123 pixels that hold 90 % of a spot's thin-shaft
+#: error (held-out seed 2000, minmax: estimate 1/30 of the truth); capped,
+#: and marched against :data:`EDGE_BISECTED_REFERENCE`, 0.95x.  On 8
+#: held-out scenes at 640x480 (40 probe settings of the tree, the filter
+#: and minmax, each tier's reference on the rest): no estimate under
+#: 0.55x of the truth (5 of 40 under half before, down to 1/30)
+EDGE_STRATUM = 3840
 #: the exact marcher the probe's errors are measured against
 #: (:func:`reference_settings`): with boundary bisections (each shadow
 #: edge located, :func:`~integrators.core.marching.march_bisected`), and
@@ -102,6 +112,16 @@ EDGE_PIXELS = 300
 LOOSE_BISECTED_REFERENCE = {"steps": 64, "boundary_bisections": 8}
 BISECTED_REFERENCE = {"steps": 128, "boundary_bisections": 8}
 FINE_BISECTED_REFERENCE = {"steps": 256, "boundary_bisections": 8}
+#: the reference on the edge stratum's pixels (:class:`Strata`), whatever
+#: the budget: the edges are where the coarser ones err, and an estimate
+#: weighting them by their share of the image carries that error in full
+#: (held-out seed 2000 at 640x480, a stratum of 3,840 pixels: against
+#: 128x8 on its edges, minmax's estimate is 3.6x the truth, against 256x8
+#: 1.6x, against this one or 1,024 steps 0.95x -- 512 and 1,024 alike on
+#: 8 such scenes; marched apart from the rest, 300 pixels at 512x8 cost
+#: about what the other 900 at 128x8 cost).  Where a textured spot lights
+#: the scene, the finer plain reference (:data:`FINE_REFERENCE_STEPS`)
+EDGE_BISECTED_REFERENCE = {"steps": 512, "boundary_bisections": 8}
 #: steps of the plain exact marcher the probe measures against where a
 #: textured spot light lights the scene: its texture varies inside the lit
 #: intervals the bisections find, which their two samples per segment do
@@ -204,11 +224,13 @@ def probe_pixels(width: int, height: int, target: int = PROBE_PIXELS) -> np.ndar
     return (ys * width + xs).ravel()
 
 
-def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE) -> np.ndarray:
+def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE,
+                most: int | None = EDGE_STRATUM) -> np.ndarray:
     """Indices (row-major, sorted) of the ``share`` of the pixels of
-    ``image`` (H, W, C) with the largest relative contrast to a 4-neighbour,
-    |Y_p - Y_n| / (Y_p + Y_n + 1e-2 mean Y) on the channel mean Y: the shaft
-    and shadow edges, where a method's error concentrates."""
+    ``image`` (H, W, C), at most ``most`` of them, with the largest
+    relative contrast to a 4-neighbour, |Y_p - Y_n| / (Y_p + Y_n + 1e-2
+    mean Y) on the channel mean Y: the shaft and shadow edges, where a
+    method's error concentrates."""
     Y = np.asarray(image, np.float64).mean(axis=-1)
     floor = 1e-2 * max(float(Y.mean()), 1e-30)
     down = np.abs(Y[1:] - Y[:-1]) / (Y[1:] + Y[:-1] + floor)            # each pixel and the next row's
@@ -217,7 +239,7 @@ def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE) -> np.ndarray:
     for dst, c in ((score[1:], down), (score[:-1], down), (score[:, 1:], right),
                    (score[:, :-1], right)):
         np.maximum(dst, c, out=dst)
-    n = max(int(round(share * Y.size)), 1)
+    n = max(min(int(round(share * Y.size)), most or Y.size), 1)
     flat = score.ravel()
     top = np.argpartition(-flat, n - 1)[:n]
     return np.sort(top[flat[top] > 0])
@@ -231,7 +253,8 @@ class Strata:
     shafts can hold most of a method's error, are sampled several times as
     densely.  ``pixels``: the sample's indices (the strided ones first);
     ``weights``: per sample, its stratum's share of the image over the
-    stratum's samples (they sum to 1)."""
+    stratum's samples (they sum to 1); ``edge``: per sample, whether it
+    lies in the edge stratum."""
 
     def __init__(self, strided: np.ndarray, edges: np.ndarray, n_pixels: int, extra: int):
         in_edges = np.isin(strided, edges)
@@ -239,7 +262,7 @@ class Strata:
             if len(edges) and extra else np.zeros(0, strided.dtype)
         pick = np.setdiff1d(pick, strided)
         self.pixels = np.concatenate([strided, pick]).astype(np.int64)
-        edge = np.concatenate([in_edges, np.ones(len(pick), bool)])
+        self.edge = edge = np.concatenate([in_edges, np.ones(len(pick), bool)])
         w = np.zeros(len(self.pixels))
         share_e = len(edges) / n_pixels
         if edge.any():
@@ -270,19 +293,21 @@ def subset_relmse(test: np.ndarray, ref: np.ndarray, eps: float = 1e-2,
     return float(np.sum(w * np.mean(d2 / (ref ** 2 + floor), axis=-1)))
 
 
-def reference_settings(scene, sensor=0, fine: bool = False, loose: bool = False) -> dict:
+def reference_settings(scene, sensor=0, fine: bool = False, loose: bool = False,
+                       edges: bool = False) -> dict:
     """The ``raymarch visibility=exact`` settings the probe of ``scene``
     measures against (``fine``: the finer reference; ``loose``: a loose
-    budget's): the bisected marcher (:data:`BISECTED_REFERENCE`,
-    :data:`FINE_BISECTED_REFERENCE`, :data:`LOOSE_BISECTED_REFERENCE`), or
+    budget's; ``edges``: the edge stratum's): the bisected marcher
+    (:data:`BISECTED_REFERENCE`, :data:`FINE_BISECTED_REFERENCE`,
+    :data:`LOOSE_BISECTED_REFERENCE`, :data:`EDGE_BISECTED_REFERENCE`), or
     :data:`REFERENCE_STEPS` / :data:`FINE_REFERENCE_STEPS` plain steps
     where a textured spot light lights the scene."""
     from .scene_params import SceneParams
 
     s = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
     if any(light.textured for light in SceneParams.from_scene(scene, s).lights):
-        return {"steps": FINE_REFERENCE_STEPS if fine else REFERENCE_STEPS}
-    return dict(FINE_BISECTED_REFERENCE if fine else
+        return {"steps": FINE_REFERENCE_STEPS if fine or edges else REFERENCE_STEPS}
+    return dict(EDGE_BISECTED_REFERENCE if edges else FINE_BISECTED_REFERENCE if fine else
                 LOOSE_BISECTED_REFERENCE if loose else BISECTED_REFERENCE)
 
 
@@ -296,8 +321,10 @@ class Probe:
     error is measured: where that first render is a full image,
     :data:`EDGE_PIXELS` of the pixels (at most a quarter) are taken on its
     edges and the rest strided, a stratified sample (:class:`Strata`, its
-    weights in every error after; ``loose``: a loose budget's reference);
-    a probe whose first render is partial keeps the strided pixels.  Its
+    weights in every error after; ``loose``: a loose budget's reference),
+    whose edge pixels are marched against the edge reference
+    (:func:`reference_settings` with ``edges``) whatever the budget; a
+    probe whose first render is partial keeps the strided pixels.  Its
     full-image renders are kept (:attr:`kept`, by settings) so that a
     render asking for one of them again reuses it (:func:`render_auto`)."""
 
@@ -314,13 +341,19 @@ class Probe:
         self.weights = None
         #: how many of :attr:`pixels` were added on the edges (:class:`Strata`)
         self.edge_pixels = 0
+        #: per probe pixel, whether it lies in the edge stratum (None: not stratified)
+        self.edge = None
         self._set_mask()
         #: the marcher's settings of the reference and of the finer one
         self.reference_props = ({"steps": steps} if steps else
                                 reference_settings(scene, s, fine, loose and not fine))
         self.fine_props = (self.reference_props if steps or fine else
                            reference_settings(scene, s, True))
+        self.edge_props = self.reference_props if steps else reference_settings(scene, s,
+                                                                                 edges=True)
         self._reference = self._fine = None
+        #: (settings key, which pixels) -> the marcher's values there
+        self._marched = {}
         #: (settings key, partial) -> the probe pixels' values of a render
         self._rendered = {}
         self.errors = []
@@ -345,12 +378,39 @@ class Probe:
     def reference(self) -> np.ndarray:
         """The exact marcher's values on the probe pixels (marched once, at
         first use: the probe's pixels are fixed from then on)."""
+        if self._reference is None:
+            self._reference = self._stratum_reference(self.reference_props)
+        return self._reference
+
+    def _march(self, props: dict, which: str) -> np.ndarray:
+        """The exact marcher's values at ``props`` on the probe pixels of
+        the edge stratum (``which="edges"``), of the rest (``"rest"``) or
+        on all of them (``"all"``), marched once."""
         import mitsuba as mi
 
-        if self._reference is None:
-            self._reference = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
-                                                        **self.reference_props}), partial=True)
-        return self._reference
+        key = (settings_key(props), which)
+        if key not in self._marched:
+            pick = (np.ones(len(self.pixels), bool) if which == "all" else
+                    self.edge if which == "edges" else ~self.edge)
+            mask = np.zeros(self.width * self.height, bool)
+            mask[self.pixels[pick]] = True
+            integ = mi.load_dict({"type": "raymarch", "visibility": "exact", **props})
+            res = integ.render_layers(self.scene, self.sensor, seed=self.seed, spp=1,
+                                      samples=mask)
+            self._marched[key] = self.image(integ, res)[self.pixels[pick]]
+        return self._marched[key]
+
+    def _stratum_reference(self, props: dict) -> np.ndarray:
+        """The reference on the probe pixels: the marcher at ``props``, on
+        the edge stratum's pixels at :attr:`edge_props` where that is
+        another setting."""
+        if self.edge is None or not self.edge.any() or props == self.edge_props:
+            return self._march(props, "all")
+        out = np.empty((len(self.pixels), self._march(self.edge_props, "edges").shape[-1]))
+        out[self.edge] = self._march(self.edge_props, "edges")
+        if (~self.edge).any():
+            out[~self.edge] = self._march(props, "rest")
+        return out
 
     def stratify(self, image: np.ndarray) -> None:
         """Add the edges of ``image`` (H, W, C), a full render of the scene,
@@ -362,7 +422,7 @@ class Probe:
         strided = probe_pixels(self.width, self.height, len(self.pixels) - extra)
         strata = Strata(strided, edge_pixels(image), self.width * self.height, extra)
         self.edge_pixels = len(strata.pixels) - len(strided)
-        self.pixels, self.weights = strata.pixels, strata.weights
+        self.pixels, self.weights, self.edge = strata.pixels, strata.weights, strata.edge
         self._set_mask()
 
     def predict(self, relmse, how: str) -> None:
@@ -429,13 +489,10 @@ class Probe:
         """The finer reference (:func:`reference_settings` with ``fine``) on
         the probe pixels (made once): errors of settings near the probe's
         own reference need a finer one."""
-        import mitsuba as mi
-
         if self.fine_props == self.reference_props:
             return self.reference
         if self._fine is None:
-            self._fine = self.values(mi.load_dict({"type": "raymarch", "visibility": "exact",
-                                                   **self.fine_props}), partial=True)
+            self._fine = self._stratum_reference(self.fine_props)
         return self._fine
 
     @property
