@@ -261,3 +261,16 @@ def test_auto_suite_small(tmp_path):
     check_outputs(tmp_path, ["runs.csv", "runs.json", "table.md"])
     (row,) = rows
     assert row["settings"]["visibility"] == "exact" and row["relmse"] >= 0
+
+
+def test_probe_strata_small(tmp_path):
+    """The probe-pixel experiment on one tiny held-out scene: every
+    estimate (strided, both strata, the probe's own) written and finite."""
+    from experiments import probe_strata
+
+    rows, out = common.held_out_main(probe_strata.__doc__, (2000,), tmp_path, probe_strata.run,
+                                     probe_strata.table, ["--size", "48x36"])
+    assert len(rows) == len(probe_strata.SETTINGS)
+    for r in rows:
+        assert all(math.isfinite(r[k]) and r[k] >= 0 for k, _ in probe_strata.ESTIMATES)
+    assert "the probe's stratum against its references" in (out / "table.md").read_text()
