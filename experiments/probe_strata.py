@@ -11,9 +11,9 @@ samples (900 strided + 300 on the edges of the setting's image,
 of the image (``share``) and on the probe's (at most
 :data:`~integrators.core.quality_auto.EDGE_STRATUM` pixels, ``stratified``);
 and the probe's own estimate (``probe``): its stratified sample against
-its references (the budget 1e-4's on the strided pixels, the edge
-reference on the edge stratum's, :func:`~integrators.core.quality_auto.
-reference_settings`).
+its references (the budget 1e-4's, and on the edge stratum's pixels,
+where the stratum is capped -- images larger than 320x240 --, the edge
+reference, :meth:`~integrators.core.quality_auto.Probe.stratify`).
 
 Writes ``results/probe_strata/``: ``runs.csv``, ``table.md``.
 ``python -m experiments.probe_strata [--size 320x240] [--seeds 2000,...]
@@ -54,8 +54,10 @@ def run(seeds, width: int, height: int) -> list[dict]:
     from experiments.error_budget import scene_spec
     from integrators.core import quality_auto as qa
 
+    from tqdm.auto import tqdm
+
     rows = []
-    for seed in seeds:
+    for seed in tqdm(seeds, desc="held-out scenes", unit="scene"):
         scene = scene_spec(seed, "mixed").at_resolution(width, height).load()
         ref = render_rgb(scene, mi.load_dict({"type": "raymarch", **exact_props(2048)}), spp=1)
         flat_ref = ref.reshape(-1, ref.shape[-1])
@@ -82,9 +84,10 @@ def run(seeds, width: int, height: int) -> list[dict]:
 
 def probe_estimate(scene, img, strata, marched: dict) -> float:
     """The probe's estimate of ``img``'s relMSE on the stratified sample
-    ``strata``: against the budget 1e-4's reference on its strided pixels
-    and the edge reference on its edge stratum's (``marched``: full
-    images of those references, made once per scene)."""
+    ``strata``: against the budget 1e-4's reference, on its edge
+    stratum's pixels against the edge reference where the stratum is
+    capped (:meth:`~integrators.core.quality_auto.Probe.stratify`;
+    ``marched``: full images of those references, made once per scene)."""
     import mitsuba as mi
 
     from episcatter.reference import render_rgb
@@ -97,7 +100,9 @@ def probe_estimate(scene, img, strata, marched: dict) -> float:
                                                    **props}), spp=1)
             marched[key] = full.reshape(-1, full.shape[-1])
     px = strata.pixels
-    ref = np.where(strata.edge[:, None], marched["edges"][px], marched["rest"][px])
+    capped = round(qa.EDGE_SHARE * img.shape[0] * img.shape[1]) > qa.EDGE_STRATUM
+    edge = strata.edge[:, None] & capped
+    ref = np.where(edge, marched["edges"][px], marched["rest"][px])
     return qa.subset_relmse(img.reshape(-1, img.shape[-1])[px], ref, weights=strata.weights)
 
 

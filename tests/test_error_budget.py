@@ -408,12 +408,20 @@ def test_the_edge_stratum_keeps_its_density_on_a_large_image():
         assert true / 2 <= est <= true * 2
 
 
-def test_the_probe_marches_its_edge_stratum_against_the_edge_reference(make_scene):
-    """The edge stratum's pixels are measured against the edge reference
+def test_the_probe_marches_its_edge_stratum_against_the_edge_reference(make_scene,
+                                                                       monkeypatch):
+    """Where the edge stratum is capped (here at 120 of the 240 pixels 5 %
+    would take), its pixels are measured against the edge reference
     whatever the budget's reference (the coarser ones err on exactly those
-    pixels), the rest against the budget's; both are the marcher's values
-    on those pixels."""
+    sharpest edges), the rest against the budget's; both are the
+    marcher's values on those pixels.  Uncapped, one reference: the
+    budget's."""
     scene = make_scene(res=(80, 60))
+    plain = qa.Probe(scene, 0, "epipolar_tree", {}, loose=True)
+    plain.error({"slice_spacing": 2.0, "light_rays": 64})
+    assert plain.edge.any() and plain.edge_props is None
+    assert list(plain._marched) == [(qa.settings_key(qa.LOOSE_BISECTED_REFERENCE), "all")]
+    monkeypatch.setattr(qa, "EDGE_STRATUM", 120)
     probe = qa.Probe(scene, 0, "epipolar_tree", {}, loose=True)
     probe.error({"slice_spacing": 2.0, "light_rays": 64})
     assert probe.edge is not None and probe.edge.any() and (~probe.edge).any()
