@@ -100,8 +100,7 @@ def probe_estimate(scene, img, strata, marched: dict) -> float:
                                                    **props}), spp=1)
             marched[key] = full.reshape(-1, full.shape[-1])
     px = strata.pixels
-    capped = round(qa.EDGE_SHARE * img.shape[0] * img.shape[1]) > qa.EDGE_STRATUM
-    edge = strata.edge[:, None] & capped
+    edge = strata.edge[:, None] & qa.edge_stratum_capped(img.shape[0] * img.shape[1])
     ref = np.where(edge, marched["edges"][px], marched["rest"][px])
     return qa.subset_relmse(img.reshape(-1, img.shape[-1])[px], ref, weights=strata.weights)
 

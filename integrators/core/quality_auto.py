@@ -122,8 +122,9 @@ FINE_BISECTED_REFERENCE = {"steps": 256, "boundary_bisections": 8}
 #: 128x8 on its edges, minmax's estimate is 3.6x the truth, against 256x8
 #: 1.6x, against this one or 1,024 steps 0.95x -- 512 and 1,024 alike on
 #: the first 8 of those scenes; marched apart from the rest, 300 pixels at
-#: 512x8 cost about what the other 900 at 128x8 cost, 25-45 ms).  Where a textured spot lights
-#: the scene, the finer plain reference (:data:`FINE_REFERENCE_STEPS`)
+#: 512x8 cost about what the other 900 at 128x8 cost, 25-45 ms).  Where a
+#: textured spot lights the scene, the finer plain reference
+#: (:data:`FINE_REFERENCE_STEPS`)
 EDGE_BISECTED_REFERENCE = {"steps": 512, "boundary_bisections": 8}
 #: steps of the plain exact marcher the probe measures against where a
 #: textured spot light lights the scene: its texture varies inside the lit
@@ -246,6 +247,13 @@ def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE,
     flat = score.ravel()
     top = np.argpartition(-flat, n - 1)[:n]
     return np.sort(top[flat[top] > 0])
+
+
+def edge_stratum_capped(n_pixels: int) -> bool:
+    """Whether the edge stratum of an image of ``n_pixels`` is capped at
+    :data:`EDGE_STRATUM` (fewer pixels than its :data:`EDGE_SHARE`): it
+    then holds only the sharpest edges (:meth:`Probe.stratify`)."""
+    return round(EDGE_SHARE * n_pixels) > EDGE_STRATUM
 
 
 class Strata:
@@ -435,7 +443,7 @@ class Probe:
         strata = Strata(strided, edge_pixels(image, EDGE_SHARE, EDGE_STRATUM), n, extra)
         self.edge_pixels = len(strata.pixels) - len(strided)
         self.pixels, self.weights, self.edge = strata.pixels, strata.weights, strata.edge
-        if round(EDGE_SHARE * n) > EDGE_STRATUM:
+        if edge_stratum_capped(n):
             self.edge_props = self._edge_reference
         self._set_mask()
 
