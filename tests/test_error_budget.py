@@ -285,10 +285,10 @@ def test_tree_separates_its_two_terms_when_the_prediction_is_dear():
 def test_filter_renders_its_prediction_second():
     m1 = fq.FILTER_PROBE[0]
     k = qa.FIT["fourier_filter"]["k"]
-    m2 = fq.predicted_coefficients(1e-4, 1e-5)
-    assert m2 > m1 and 1e-4 * (m2 / m1) ** k <= qa.SAFETY * 1e-5
+    m2 = fq.predicted_coefficients(3e-5, 1e-5)
+    assert m1 < m2 <= fq.FLOOR_TEST_M and 3e-5 * (m2 / m1) ** k <= qa.SAFETY * 1e-5
     assert fq.predicted_coefficients(1.0, 1e-5) == fq.FILTER_COEFFICIENTS[-1]
-    probe = FixedProbe([1e-4, 1e-6])
+    probe = FixedProbe([3e-5, 1e-6])
     assert fq.choose_filter(probe, 1e-5) == {"coefficients": m2} == probe.asked[1]
     F, C = 2e-5, 0.4
     e = [F + C * m ** k for m in (m1, 64)]
@@ -304,6 +304,29 @@ def test_filter_floor_above_the_budget_switches_to_exact_weights():
     assert got.get("weights") == "exact"
     assert "weights" not in qa.RULES["fourier_filter"].choose(
         FixedProbe([4.61e-5, 4.17e-5]), 1e-4)
+
+
+def test_filter_tests_its_floor_before_a_dear_prediction():
+    """Held-out spot lights at 640x480 (seeds 2004, 2020): 16 coefficients
+    measure 5e-4 whatever M (the reference-ray weights' floor); the
+    series-only prediction for 1e-4 asked for 96 coefficients (1.4 s, the
+    same 5e-4) before the model switched to exact weights.  Now a
+    prediction above FLOOR_TEST_M tests the floor at the same M with exact
+    weights, kept when it meets the budget; where it does not, the floor
+    and series terms it separates choose."""
+    m1 = fq.FILTER_PROBE[0]
+    assert fq.predicted_coefficients(5e-4, 1e-4) > fq.FLOOR_TEST_M
+    probe = FixedProbe([5e-4, 3e-6])
+    got = fq.choose_filter(probe, 1e-4)
+    assert got == {"coefficients": m1, "weights": "exact"} == probe.asked[1]
+    assert len(probe.asked) == 2 and probe.predicted_from == "measured"
+    # the series term, not the floor: exact weights hardly help, so the
+    # model buys coefficients with exact weights (the floor is gone there)
+    probe = FixedProbe([1e-4, 9e-5])
+    got = fq.choose_filter(probe, 1e-5)
+    k = qa.FIT["fourier_filter"]["k"]
+    assert got["weights"] == "exact" and 9e-5 * (got["coefficients"] / m1) ** k <= 0.5e-5
+    assert all(a.get("coefficients", 0) <= fq.FLOOR_TEST_M for a in probe.asked)
 
 
 def test_probe_pixels_stride_the_image():
