@@ -404,14 +404,11 @@ class Probe:
 
         key = (settings_key(props), which)
         if key not in self._marched:
-            pick = (np.ones(len(self.pixels), bool) if which == "all" else
-                    self.edge if which == "edges" else ~self.edge)
-            mask = np.zeros(self.width * self.height, bool)
-            mask[self.pixels[pick]] = True
+            pixels = (self.pixels if which == "all" else
+                      self.pixels[self.edge if which == "edges" else ~self.edge])
             integ = mi.load_dict({"type": "raymarch", "visibility": "exact", **props})
-            res = integ.render_layers(self.scene, self.sensor, seed=self.seed, spp=1,
-                                      samples=mask)
-            self._marched[key] = self.image(integ, res)[self.pixels[pick]]
+            res = self.render(integ, partial=True, pixels=pixels)
+            self._marched[key] = self.image(integ, res)[pixels]
         return self._marched[key]
 
     def _stratum_reference(self, props: dict) -> np.ndarray:
@@ -420,8 +417,9 @@ class Probe:
         and another setting."""
         if self.edge_props is None or not self.edge.any() or props == self.edge_props:
             return self._march(props, "all")
-        out = np.empty((len(self.pixels), self._march(self.edge_props, "edges").shape[-1]))
-        out[self.edge] = self._march(self.edge_props, "edges")
+        edges = self._march(self.edge_props, "edges")
+        out = np.empty((len(self.pixels), edges.shape[-1]))
+        out[self.edge] = edges
         if (~self.edge).any():
             out[~self.edge] = self._march(props, "rest")
         return out
@@ -467,11 +465,16 @@ class Probe:
             "converges to the reference with enough steps; or raise the budget.",
             UserWarning, stacklevel=3)
 
-    def render(self, integrator, partial=False):
+    def render(self, integrator, partial=False, pixels=None):
         """RenderResult of ``integrator`` at one sample per pixel centre (a
-        partial render of the probe pixels where the method marches
-        samples alone)."""
-        kw = {"samples": self.mask} if partial else {}
+        partial render of the probe pixels -- or of ``pixels`` where given
+        -- where the method marches samples alone)."""
+        if pixels is not None:
+            mask = np.zeros(self.width * self.height, bool)
+            mask[pixels] = True
+        else:
+            mask = self.mask
+        kw = {"samples": mask} if partial else {}
         return integrator.render_layers(self.scene, self.sensor, seed=self.seed, spp=1, **kw)
 
     def image(self, integrator, result) -> np.ndarray:

@@ -102,9 +102,10 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     """Coefficients and weights of the filter (module doc): the defaults
     where they take the exact sum (:func:`exact_by_default`); else the
     first probe setting if it meets the target; else the M predicted from
-    its error alone (:func:`predicted_coefficients`), rendered as the
-    second probe and returned if it meets the target; else the model
-    through both."""
+    its error alone (:func:`predicted_coefficients`) -- or, where that is
+    more than :data:`FLOOR_TEST_M`, the first M with exact weights
+    (:func:`floor_model`) -- rendered as the second probe and returned if
+    it meets the target; else the model through both."""
     if exact_by_default(probe):
         e0 = probe.error({})
         probe.predict(e0, "measured")
@@ -116,36 +117,30 @@ def choose_filter(probe: Probe, budget: float, fit=None) -> dict:
     if meets(probe, e1, budget):
         probe.predict(e1, "measured")
         return first
-    m2 = predicted_coefficients(e1, budget, fit)
-    if m2 > FLOOR_TEST_M:
-        return _floor_tested(probe, first["coefficients"], e1, budget, fit)
-    e2 = probe.error({"coefficients": m2})
-    if meets(probe, e2, budget):
-        probe.predict(e2, "measured")
-        return {"coefficients": m2}
-    settings = filter_settings(e1, e2, budget, fit, m2, safe=True)   # a guess: not below 32
-    F, C = filter_model(e1, e2, fit, m2)
-    settle(probe, settings, budget,
-           filter_error(F, C, settings["coefficients"], "weights" in settings, fit))
-    return settings
-
-
-def _floor_tested(probe: Probe, m1: int, e1: float, budget: float, fit=None) -> dict:
-    """:func:`choose_filter` after a first error ``e1`` at ``m1`` whose
-    series-only prediction is dear: the second probe is ``m1`` with
-    ``weights="exact"``, returned if it meets the target; else the model
-    with F = e1 - e_exact and C m1^k = e_exact."""
-    fit = fit or FITTED
-    second = {"coefficients": m1, "weights": "exact"}
+    m1, m2 = first["coefficients"], predicted_coefficients(e1, budget, fit)
+    if m2 > FLOOR_TEST_M:                # test the floor at the same M (module doc)
+        second = {"coefficients": m1, "weights": "exact"}
+        model = lambda e2: floor_model(e1, e2, m1, fit)
+    else:
+        second = {"coefficients": m2}
+        model = lambda e2: filter_model(e1, e2, fit, m2)
     e2 = probe.error(second)
     if meets(probe, e2, budget):
         probe.predict(e2, "measured")
         return second
-    F, C = max(e1 - e2, 0.0), e2 / m1 ** fit["k"]
-    settings = filter_choice(F, C, budget, fit, safe=True)
+    F, C = model(e2)
+    settings = filter_choice(F, C, budget, fit, safe=True)   # a guess: not below 32
     settle(probe, settings, budget,
            filter_error(F, C, settings["coefficients"], "weights" in settings, fit))
     return settings
+
+
+def floor_model(e1: float, e_exact: float, m: int, fit=None) -> tuple[float, float]:
+    """(F, C) of relMSE = F + C M^k from the errors at the same ``m`` with
+    the default weights (``e1``) and with ``weights="exact"``
+    (``e_exact``, the series term alone)."""
+    fit = fit or FITTED
+    return max(e1 - e_exact, 0.0), e_exact / m ** fit["k"]
 
 
 def exact_by_default(probe: Probe) -> bool:
