@@ -1,7 +1,7 @@
-"""``quality="auto"`` fitted on the suite and held out on generated scenes
-(issue 16, item 4):
+"""``quality="auto"`` fitted on the suite and held out on generated scenes:
 ``python -m experiments.error_budget [--fit RUNS.json ...] [--fit-only]
-[--seeds N] [--size WxH] [--methods ...] [--quick]``.
+[--seeds N] [--size WxH] [--methods ...] [--repeats N] [--no-probe-accuracy]
+[--reference-cache DIR] [--quick]``.
 
 1. Fit (:func:`fit_constants`): the exponents and time model of
    :data:`integrators.core.quality_auto.FIT` from the suite's frontier runs
@@ -14,9 +14,12 @@
    1e-4 / 1e-5 the ``quality="auto"`` integrator renders, its relMSE is
    measured against the exact pixel-centre reference (``raymarch
    visibility=exact``, 2048 steps) and its time (render alone: the chosen
-   settings timed as the sweep; with the probe: the warm auto render end
-   to end) is compared with the fastest frontier setting meeting the
-   achieved error.
+   settings; with the probe: the warm auto render end to end; medians of
+   ``--repeats`` after a warm-up) is compared with the fastest frontier
+   setting meeting the achieved error and with the fastest swept setting
+   meeting the budget (timed again the same way), and the probe's
+   reference marches are timed apart: a rule that rendered only that
+   setting would still pay them.
 
 Writes ``results/error_budget/``: ``choices.csv``, ``sweep.csv``,
 ``budget.json`` and ``table.md``.
@@ -48,6 +51,9 @@ PROBE_VARIANTS = tuple(itertools.product((150, 300, 600, 1200), (256, 512, 1024)
 STRATIFIED = "900+300 edges"
 ESTIMATE_VARIANTS = PROBE_VARIANTS + tuple((STRATIFIED, n) for n in (256, 512, 1024))
 LEVELS = (1e-3, 1e-4, 1e-5)
+#: swept settings meeting a budget whose single timing is within this
+#: factor of the fastest are timed again as medians (:func:`run_scene`)
+RETIMED = 1.25
 FIT_RUNS = ["results/frontier/quick640/runs.json", "results/frontier/quick160/runs.json"]
 METHODS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
 #: the held-out kinds beyond experiments.random_scenes': ``user`` (experiments.user_scenes),
@@ -158,13 +164,62 @@ def timed(scene, integrator, repeats):
     """(image, median time) of ``repeats`` renders after a warm-up (DESIGN §5)."""
     from episcatter.reference import render_rgb
 
-    render_rgb(scene, integrator, spp=1)
-    times, img = [], None
-    for _ in range(repeats):
+    return median_time(lambda: render_rgb(scene, integrator, spp=1), repeats)
+
+
+def median_time(render, repeats):
+    """(last result, median time) of ``repeats`` calls of ``render`` after a
+    warm-up call."""
+    out = render()
+    times = []
+    for _ in range(max(repeats, 1)):
         t0 = time.perf_counter()
-        img = render_rgb(scene, integrator, spp=1)
+        out = render()
         times.append(time.perf_counter() - t0)
-    return img, statistics.median(times)
+    return out, statistics.median(times)
+
+
+def auto_render(scene, auto):
+    """The ``quality="auto"`` integrator's RenderResult, evaluated and
+    synchronised (its time is the user's: probe and render)."""
+    import drjit as dr
+
+    res = auto.render_layers(scene, spp=1)
+    dr.eval(res["full"])
+    dr.sync_thread()
+    return res
+
+
+def reference_time(scene, budget, image, repeats) -> float:
+    """Median time of the probe's reference marches for ``budget`` (the
+    tier :func:`~integrators.core.quality_auto.probe_and_choose` uses, on
+    the pixels it would take, stratified on ``image``): what even a rule
+    that rendered only the best setting would pay to measure it."""
+    from integrators.core import quality_auto as qa
+
+    def march():
+        probe = qa.Probe(scene, 0, "raymarch", {}, fine=budget < qa.TIGHT_BUDGET,
+                         loose=budget >= qa.LOOSE_BUDGET)
+        probe.stratify(image)
+        return probe.reference
+    return median_time(march, repeats)[1]
+
+
+def cached_reference(cache, name, size, render):
+    """The held-out reference of scene ``name`` at ``size``: ``render()``,
+    kept in directory ``cache`` (None: not kept) for later runs."""
+    if cache is None:
+        return render()
+    import hashlib
+
+    key = hashlib.sha1(f"{name} {size[0]}x{size[1]} {exact_description(2048)}".encode())
+    path = os.path.join(cache, key.hexdigest()[:20] + ".npy")
+    if os.path.isfile(path):
+        return np.load(path)
+    ref = np.asarray(render(), np.float32)
+    os.makedirs(cache, exist_ok=True)
+    np.save(path, ref)
+    return ref
 
 
 def explicit(method, setting, diagonal) -> dict:
@@ -206,12 +261,13 @@ def scene_spec(seed: int, kind: str):
     return random_scene(seed, KIND if kind == "mixed" else kind)
 
 
-def held_out_scenes(n, first_seed, size, kind=KIND):
+def held_out_scenes(n, first_seed, size, kind=KIND, cache=None):
     """(name, scene spec at ``size``, reference) of the first ``n`` usable
     seeds of :func:`scene_spec`: reference finite and lit, and the cheapest
     marcher (:data:`CHEAPEST`) missing :data:`HARD_LEVEL`.  The specs, not
     the loaded scenes: each is loaded when its turn comes and dropped after
-    (dozens of scenes held at once made every render 1.5x slower)."""
+    (dozens of scenes held at once made every render 1.5x slower).
+    ``cache``: a directory keeping the references for later runs."""
     import mitsuba as mi
 
     from episcatter import frontier as fr
@@ -225,7 +281,8 @@ def held_out_scenes(n, first_seed, size, kind=KIND):
             spec = scene_spec(seed, kind).at_resolution(*size)
             seed += 1
             scene = spec.load()
-            ref = render_rgb(scene, mi.load_dict(REFERENCE), spp=1)
+            ref = cached_reference(cache, spec.name, size,
+                                   lambda: render_rgb(scene, mi.load_dict(REFERENCE), spp=1))
             why = usable_reference(ref)
             if not why:
                 e = fr.image_errors(render_rgb(scene, mi.load_dict(CHEAPEST), spp=1),
@@ -286,8 +343,15 @@ def probe_reference_times(name, scene) -> list[dict]:
     return rows
 
 
-def run_scene(name, scene, ref, methods, repeats, log):
-    """(choices, sweep, probe rows) of one held-out scene (module doc)."""
+def run_scene(name, scene, ref, methods, repeats, log, probe_accuracy_rows=True):
+    """(choices, sweep, probe rows) of one held-out scene (module doc):
+    each swept setting timed once after a warm-up; per budget the auto
+    render (probe included), its chosen setting, and the fastest swept
+    settings that meet the budget (those within :data:`RETIMED` of the
+    fastest) timed again as medians of ``repeats`` after a warm-up, so
+    that the ratios compare medians taken in one process; the probe's
+    estimates against the truth (``probe_accuracy_rows``) cost three
+    full-image marches per scene."""
     import mitsuba as mi
 
     from episcatter import frontier as fr
@@ -297,25 +361,27 @@ def run_scene(name, scene, ref, methods, repeats, log):
     h, w = ref.shape[:2]
     diag = math.hypot(w, h)
     choices, sweep, probes = [], [], []
-    refs = {n: render_rgb(scene, mi.load_dict({**PROBE_REFERENCE, "steps": n}), spp=1)
-            for n in sorted({st for _, st in PROBE_VARIANTS})}
+    refs = ({n: render_rgb(scene, mi.load_dict({**PROBE_REFERENCE, "steps": n}), spp=1)
+             for n in sorted({st for _, st in PROBE_VARIANTS})} if probe_accuracy_rows else {})
     for method in methods:
-        try:
-            images = {json.dumps(p, sort_keys=True):
-                      render_rgb(scene, mi.load_dict({"type": method, **p}), spp=1)
-                      for p in qa.probe_settings(method, diag)}
-            probes += probe_accuracy(name, method, scene, ref, images, refs)
-            if method == methods[0]:
-                probes += probe_reference_times(name, scene)
-        except ValueError as exc:
-            log(f"{name} {method} probe: {exc}")
-        pts = []
+        if probe_accuracy_rows:
+            try:
+                images = {json.dumps(p, sort_keys=True):
+                          render_rgb(scene, mi.load_dict({"type": method, **p}), spp=1)
+                          for p in qa.probe_settings(method, diag)}
+                probes += probe_accuracy(name, method, scene, ref, images, refs)
+                if method == methods[0]:
+                    probes += probe_reference_times(name, scene)
+            except ValueError as exc:
+                log(f"{name} {method} probe: {exc}")
+        pts, swept = [], []
         try:
             for setting in SWEEPS[method]:
                 props = explicit(method, setting, diag)
-                img, t = timed(scene, mi.load_dict(props), repeats)
+                img, t = timed(scene, mi.load_dict(props), 1)
                 e = fr.image_errors(img, ref)["relmse"]
                 pts.append((t, e))
+                swept.append((props, t, e))
                 sweep.append({"scene": name, "method": method,
                               "settings": {k: v for k, v in props.items() if k != "type"},
                               "time_s": t, "relmse": e})
@@ -323,15 +389,17 @@ def run_scene(name, scene, ref, methods, repeats, log):
             log(f"{name} {method}: {exc}")
             continue
         front = fr.pareto_front(pts)
+        retimed = {}
+
+        def median_of(props):
+            key = json.dumps(props, sort_keys=True)
+            if key not in retimed:
+                retimed[key] = timed(scene, mi.load_dict(props), repeats)[1]
+            return retimed[key]
+
         for budget in LEVELS:
             auto = mi.load_dict({"type": method, "quality": "auto", "error_budget": budget})
-            res = auto.render_layers(scene, spp=1)                  # warm-up
-            t0 = time.perf_counter()
-            res = auto.render_layers(scene, spp=1)
-            import drjit as dr
-            dr.eval(res["full"])
-            dr.sync_thread()
-            t_auto = time.perf_counter() - t0
+            res, t_auto = median_time(lambda: auto_render(scene, auto), repeats)
             settings = res.stats["auto_settings"]
             img_e, t = timed(scene, mi.load_dict({"type": method, **settings}), repeats)
             img = np.asarray(res["full"])
@@ -340,10 +408,15 @@ def run_scene(name, scene, ref, methods, repeats, log):
             best_t, bound = (fr.time_at_error(front, err["relmse"]) if err["relmse"] > 0
                              else (float("nan"), "?"))
             # the fastest known setting that meets the budget (nan: none does):
-            # a swept one, or the rule's own choice where no swept setting
-            # does (the filter's defaults for a directional light)
-            meeting = [t_s for t_s, e_s in pts + [(t, err["relmse"])] if e_s <= budget]
+            # a swept one (the fastest few timed again as medians), or the
+            # rule's own choice where no swept setting does (the filter's
+            # defaults for a directional light)
+            meet = [(t_s, p) for p, t_s, e_s in swept if e_s <= budget]
+            fastest = min((t_s for t_s, _ in meet), default=float("nan"))
+            meeting = [median_of(p) for t_s, p in meet if t_s <= RETIMED * fastest]
+            meeting += [t] if err["relmse"] <= budget else []
             t_meet = min(meeting) if meeting else float("nan")
+            t_ref = reference_time(scene, budget, img.reshape(ref.shape), repeats)
             row = {"scene": name, "method": method, "budget": budget, "settings": settings,
                    "probe": res.stats["auto_probe"], "probe_s": res.stats["auto_probe_s"],
                    "time_s": t, "time_with_probe_s": t_auto, "relmse": err["relmse"],
@@ -358,6 +431,8 @@ def run_scene(name, scene, ref, methods, repeats, log):
                    "best_meeting_time_s": t_meet,
                    "time_over_best_meeting": t / t_meet,
                    "time_with_probe_over_best_meeting": t_auto / t_meet,
+                   "probe_reference_s": t_ref,
+                   "oracle_over_best_meeting": (t_meet + t_ref) / t_meet,
                    "time_with_probe_over_frontier": t_auto / best_t if best_t else float("nan")}
             choices.append(row)
             log(f"{name} {method} {budget:g}: {settings} relMSE {err['relmse']:.3g} "
@@ -427,7 +502,11 @@ def _reach_shares(sel) -> dict:
                                           or c.get("flagged", False)),
             "time_le_2x_best_meeting": share(lambda c: c["time_over_best_meeting"] <= 2),
             "time_with_probe_le_2x_best_meeting":
-                share(lambda c: c["time_with_probe_over_best_meeting"] <= 2)}
+                share(lambda c: c["time_with_probe_over_best_meeting"] <= 2),
+            # a rule that rendered only the best setting and measured it
+            # against the probe's reference (older runs: not measured)
+            "oracle_le_2x_best_meeting":
+                share(lambda c: c.get("oracle_over_best_meeting", math.nan) <= 2)}
 
 
 def summarize_probes(probes) -> list[dict]:
@@ -517,12 +596,16 @@ def report(summary, fit, command, skipped, probes=(), kind: str = KIND) -> str:
     lines += ["", "Per budget, on the cases some swept setting meets the budget: achieved "
               "relMSE <= 2x the budget (or flagged over budget), and the time -- alone and "
               "with the probe -- <= 2x the fastest known setting that meets the budget (a "
-              "swept one or the rule's own choice); the cases no known setting meets, how "
-              "many of them were flagged, and how many ended over 2x the budget unflagged:",
+              "swept one or the rule's own choice); the share where even a rule that "
+              "rendered only that setting and measured it against the probe's reference "
+              "(its marches timed apart) would be within 2x; the cases no known setting "
+              "meets, how many of them were flagged, and how many ended over 2x the budget "
+              "unflagged:",
               "",
               "| method | budget | reachable | relMSE <= 2x | or flagged | time <= 2x best "
-              "meeting | with probe | unreachable (flagged; > 2x unflagged) |",
-              "|---|---|---|---|---|---|---|---|"]
+              "meeting | with probe | best + probe reference <= 2x best | unreachable "
+              "(flagged; > 2x unflagged) |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for m, s in summary.items():
         for b in LEVELS + ("all",):
             r = s if b == "all" else s[f"by_budget_{b:g}"]
@@ -530,6 +613,7 @@ def report(summary, fit, command, skipped, probes=(), kind: str = KIND) -> str:
                          f"{r['within_2x']:.0%} | {r['within_2x_or_flagged']:.0%} | "
                          f"{r['time_le_2x_best_meeting']:.0%} | "
                          f"{r['time_with_probe_le_2x_best_meeting']:.0%} | "
+                         f"{r.get('oracle_le_2x_best_meeting', math.nan):.0%} | "
                          f"{r['unreachable']} ({r['unreachable_flagged']}; "
                          f"{r.get('unreachable_missed', '?')}) |")
     if probes:
@@ -574,7 +658,13 @@ def main(argv=None) -> int:
                         "(experiments.user_scenes)")
     p.add_argument("--methods", nargs="+", default=list(METHODS))
     p.add_argument("--size", default="128x96")
-    p.add_argument("--repeats", type=int, default=1, help="timed renders after a warm-up")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="timed renders after a warm-up (medians) of the auto render, its "
+                        "choice and the fastest swept settings meeting each budget")
+    p.add_argument("--no-probe-accuracy", action="store_true",
+                   help="skip the probe-estimate table (three full-image marches a scene)")
+    p.add_argument("--reference-cache", default=None,
+                   help="directory keeping the held-out references for later runs")
     p.add_argument("--quick", action="store_true", help="tiny smoke run")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
@@ -588,13 +678,14 @@ def main(argv=None) -> int:
     repeats = 1 if args.quick else args.repeats
     out = args.out or os.path.join("results", NAME)
     os.makedirs(out, exist_ok=True)
-    scenes, skipped = held_out_scenes(n, args.first_seed, size, args.kind)
+    scenes, skipped = held_out_scenes(n, args.first_seed, size, args.kind,
+                                      args.reference_cache)
     choices, sweep, probes = [], [], []
     command = "python -m experiments.error_budget " + " ".join(argv if argv is not None
                                                                else os.sys.argv[1:])
     for name, spec, ref in scenes:        # the files are rewritten after every scene
         c, s, pr = run_scene(name, spec.load(), ref, args.methods, repeats,
-                             lambda m: print(m, flush=True))
+                             lambda m: print(m, flush=True), not args.no_probe_accuracy)
         choices += c
         sweep += s
         probes += pr

@@ -201,6 +201,23 @@ def test_minmax_keeps_a_measured_step_where_a_finer_one_does_not_help():
     assert mq.choose_minmax(probe, 1e-5) == {"initial_step": mq.minmax_step(8e-6, 2e-6, 1e-5)}
 
 
+def test_minmax_returns_its_measured_finer_step_where_the_render_reuses_it():
+    """Held-out seed 2020 at 640x480, 1e-5: steps 16 and 4 measured 1e-5 and
+    2.4e-6 (4 meets the budget), the model picked 8 and the probe rendered
+    it too -- three renders where the measured 4, whose render the probe
+    keeps, costs none.  Where the render does not reuse the probe's, the
+    model's coarser step is the cheaper render and stays."""
+    assert mq.minmax_step(4e-5, 5e-7, 1e-5) == 8
+    probe = FixedProbe([4e-5, 5e-7])
+    probe.reusable = True
+    assert mq.choose_minmax(probe, 1e-5) == {"initial_step": mq.MINMAX_PROBE[1]}
+    assert len(probe.asked) == 2 and (probe.predicted, probe.predicted_from) == (5e-7,
+                                                                                 "measured")
+    probe = FixedProbe([4e-5, 5e-7])
+    assert mq.choose_minmax(probe, 1e-5) == {"initial_step": 8}
+    assert len(probe.asked) == 2 and probe.predicted_from == "model"
+
+
 def test_a_stratified_probe_takes_a_measured_setting_within_its_margin():
     """A setting measured at 0.7x the budget on a stratified sample (an
     estimate within 1.5x of the image's in 9 of 10 cases) is taken; on a

@@ -274,3 +274,30 @@ def test_probe_strata_small(tmp_path):
     for r in rows:
         assert all(math.isfinite(r[k]) and r[k] >= 0 for k, _ in probe_strata.ESTIMATES)
     assert "the probe's stratum against its references" in (out / "table.md").read_text()
+
+
+def test_error_budget_quick(tmp_path):
+    """The held-out evaluation on one tiny scene, one method, without the
+    probe-estimate table: every case has its medians, the probe's
+    reference time and the bound of a rule that rendered only the best
+    setting; the reference cache serves the second run."""
+    from experiments import error_budget
+
+    cache = tmp_path / "refs"
+    args = ["--quick", "--methods", "minmax_epipolar", "--no-probe-accuracy",
+            "--reference-cache", str(cache)]
+    error_budget.main(args + ["--out", str(tmp_path / "a")])
+    check_outputs(tmp_path / "a", ["choices.csv", "sweep.csv", "budget.json", "table.md"])
+    assert not (tmp_path / "a" / "probe.csv").exists()
+    rows = read_csv(tmp_path / "a" / "choices.csv")
+    assert len(rows) == len(error_budget.LEVELS)
+    for r in rows:
+        t_meet, t_ref = float(r["best_meeting_time_s"]), float(r["probe_reference_s"])
+        assert t_ref > 0 and float(r["time_with_probe_s"]) > 0
+        if math.isfinite(t_meet):
+            assert float(r["oracle_over_best_meeting"]) == pytest.approx((t_meet + t_ref) / t_meet)
+    cached = sorted(cache.iterdir())
+    assert cached
+    error_budget.main(args + ["--out", str(tmp_path / "b")])
+    assert sorted(cache.iterdir()) == cached
+    assert "best + probe reference <= 2x best" in (tmp_path / "b" / "table.md").read_text()

@@ -235,7 +235,11 @@ def edge_pixels(image: np.ndarray, share: float = EDGE_SHARE,
     relative contrast to a 4-neighbour, |Y_p - Y_n| / (Y_p + Y_n + 1e-2
     mean Y) on the channel mean Y: the shaft and shadow edges, where a
     method's error concentrates."""
-    Y = np.asarray(image, np.float64).mean(axis=-1)
+    image = np.asarray(image, np.float64)
+    Y = image[..., 0].copy()                # the channel mean, summed as numpy's mean sums
+    for c in range(1, image.shape[-1]):
+        Y += image[..., c]
+    Y /= image.shape[-1]
     floor = 1e-2 * max(float(Y.mean()), 1e-30)
     down = np.abs(Y[1:] - Y[:-1]) / (Y[1:] + Y[:-1] + floor)            # each pixel and the next row's
     right = np.abs(Y[:, 1:] - Y[:, :-1]) / (Y[:, 1:] + Y[:, :-1] + floor)

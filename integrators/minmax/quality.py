@@ -3,8 +3,10 @@ integration samples): relMSE = C·s^k in the initial step s (samples between
 integration samples); the probe renders s = 16 and 4, which give the scene's
 C and k (k clamped to ``FITTED["k_range"]``, set a priori:
 the suite's frontier runs have no minmax sweep to fit it on); the largest
-candidate step predicted to meet the target -- or, where the finer probe
-step hardly lowers the error (:data:`FLAT_GAIN`), the better of the two
+candidate step predicted to meet the target -- but the finer probe step
+itself where it meets the budget and the render reuses the probe's (a
+coarser step would cost a render more) -- or, where the finer probe step
+hardly lowers the error (:data:`FLAT_GAIN`), the better of the two
 measured steps, flagged where it misses the budget.
 
 The probe and the machinery are :mod:`integrators.core.quality_auto`'s;
@@ -14,8 +16,8 @@ from __future__ import annotations
 
 import math
 
-from ..core.quality_auto import (Probe, QualityRule, clamped_exponent, probe_errors, settle,
-                                 target_of)
+from ..core.quality_auto import (Probe, QualityRule, clamped_exponent, meets, probe_errors,
+                                 settle, target_of)
 
 
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
@@ -67,6 +69,11 @@ def choose_minmax(probe: Probe, budget: float, fit=None) -> dict:
             probe.unreachable(budget, e, measured=best)
         return best
     s = minmax_step(e1, e2, budget, fit)
+    if s > MINMAX_PROBE[1] and getattr(probe, "reusable", False) and meets(probe, e2, budget):
+        # the finer probe step meets the budget and the render after the
+        # probe reuses its render: returning it costs nothing, where the
+        # model's coarser step would cost one more render
+        s = MINMAX_PROBE[1]
     if s == MINMAX_PROBE[1]:
         probe.predict(e2, "measured")
     else:
