@@ -192,7 +192,7 @@ def auto_render(scene, auto):
 
 def reference_time(scene, method, budget, image, repeats) -> float:
     """Median time of the probe's reference marches for ``budget`` (the
-    tier :func:`~integrators.core.quality_auto.probe_and_choose` uses, on
+    tier of :func:`~integrators.core.quality_auto.budget_probe`, on
     the pixels it would take: stratified on ``image``, except for the
     marcher, whose probe renders partial images and keeps its strided
     pixels): what even a rule that rendered only the best setting would
@@ -200,8 +200,7 @@ def reference_time(scene, method, budget, image, repeats) -> float:
     from integrators.core import quality_auto as qa
 
     def march():
-        probe = qa.Probe(scene, 0, method, {}, fine=budget < qa.TIGHT_BUDGET,
-                         loose=budget >= qa.LOOSE_BUDGET)
+        probe = qa.budget_probe(scene, 0, method, {}, budget)
         if method != "raymarch":
             probe.stratify(image)
         return probe.reference

@@ -600,6 +600,14 @@ def probe_errors(probe: Probe, settings, budget: float):
     return first, e1, probe.error(second)
 
 
+def budget_probe(scene, sensor, method: str, base: dict, budget: float, seed=0) -> Probe:
+    """The :class:`Probe` of ``method`` for ``budget``: its reference the
+    budget's tier (the finer one below :data:`TIGHT_BUDGET`, the loose one
+    from :data:`LOOSE_BUDGET` up)."""
+    return Probe(scene, sensor, method, base, seed=seed, fine=budget < TIGHT_BUDGET,
+                 loose=budget >= LOOSE_BUDGET)
+
+
 def choose(scene, method: str, budget: float, base: dict | None = None, sensor=0, seed=0):
     """(settings, stats) of ``method`` for ``budget`` on ``scene``: the
     rule's choice and what the probe measured (its errors, its time)."""
@@ -618,8 +626,7 @@ def probe_and_choose(scene, method: str, budget: float, base: dict | None = None
     if not (isinstance(budget, (int, float)) and budget > 0):
         raise ValueError(f"error budget {budget!r} must be a positive relMSE, e.g. 1e-4.")
     t0 = time.perf_counter()
-    probe = Probe(scene, sensor, method, base or {}, seed=seed, fine=budget < TIGHT_BUDGET,
-                  loose=budget >= LOOSE_BUDGET)
+    probe = budget_probe(scene, sensor, method, base or {}, budget, seed)
     probe.reusable = reusable
     settings = RULES[method].choose(probe, float(budget), FIT[method])
     return settings, {"auto_probe": probe.errors, "auto_probe_s": time.perf_counter() - t0,
