@@ -302,14 +302,28 @@ def test_tree_separates_its_two_terms_when_the_prediction_is_dear():
 def test_filter_renders_its_prediction_second():
     m1 = fq.FILTER_PROBE[0]
     k = qa.FIT["fourier_filter"]["k"]
-    m2 = fq.predicted_coefficients(3e-5, 1e-5)
-    assert m1 < m2 <= fq.FLOOR_TEST_M and 3e-5 * (m2 / m1) ** k <= qa.SAFETY * 1e-5
+    m2 = fq.predicted_coefficients(1.2e-5, 1e-5)
+    assert m1 < m2 <= fq.FLOOR_TEST_M and 1.2e-5 * (m2 / m1) ** k <= qa.SAFETY * 1e-5
     assert fq.predicted_coefficients(1.0, 1e-5) == fq.FILTER_COEFFICIENTS[-1]
-    probe = FixedProbe([3e-5, 1e-6])
+    probe = FixedProbe([1.2e-5, 1e-6])
     assert fq.choose_filter(probe, 1e-5) == {"coefficients": m2} == probe.asked[1]
     F, C = 2e-5, 0.4
     e = [F + C * m ** k for m in (m1, 64)]
     assert fq.filter_model(*e, m2=64) == pytest.approx((F, C), rel=1e-9)
+
+
+def test_filter_probes_its_defaults_first():
+    """The filter's first probe is its defaults' 32 coefficients, not 16:
+    on the suite's frontier runs 32 render in the time of 16 at a third to
+    a tenth of the error, and a probe that started at 16 rendered a second
+    and often a third image for budgets the defaults meet (held-out seed
+    2011 at 640x480, 1e-5: 16 coefficients 1.1e-5, then 32 at 4.4e-6 --
+    2.2x the time of rendering 32 alone)."""
+    from integrators.fourier.basis import DEFAULT_M
+
+    probe = FixedProbe([4.4e-6])
+    assert fq.choose_filter(probe, 1e-5) == {"coefficients": DEFAULT_M}
+    assert probe.asked == [{"coefficients": DEFAULT_M}] and probe.predicted_from == "measured"
 
 
 def test_filter_floor_above_the_budget_switches_to_exact_weights():
@@ -640,7 +654,7 @@ def test_a_model_predicted_setting_is_never_coarser_than_the_defaults():
     assert got["light_rays"] >= max(400, 256)
     # the filter: never fewer coefficients than the defaults' 32 on a guess
     m2 = fq.predicted_coefficients(3e-4, 1.2e-4)
-    assert fq.filter_settings(3e-4, 2.9e-4, 1.2e-4, m2=m2)["coefficients"] == 8  # unguarded
+    assert fq.filter_settings(3e-4, 2.9e-4, 1.2e-4, m2=m2)["coefficients"] < 32  # unguarded
     probe = FixedProbe([3e-4, 2.9e-4])
     got = fq.choose_filter(probe, 1.2e-4)
     assert probe.predicted_from == "model" and got["coefficients"] >= 32

@@ -1,16 +1,23 @@
 """The ``quality="auto"`` rule of ``fourier_filter`` (Klehm 2014 §3 truncated
 Fourier series): relMSE = F + C·M^k in the coefficients M (F: what the
 series cannot fix, mostly the ``reference_ray`` weights' approximation); the
-probe renders M = 16 with the default weights, then -- unless that meets the
-target -- the M predicted as if its error were all series (F = 0), which is
-the answer when it meets the target and otherwise gives F and C. Where F
-alone misses the target the rule switches to ``weights="exact"`` (which
-removes most of F) and picks M from the series term C·M^k alone.  Where
-that prediction needs more than :data:`FLOOR_TEST_M` coefficients, the
-second probe is M = 16 with ``weights="exact"`` instead: at the same M the
-two errors separate F and C·M^k directly, and a floor-bound error (a spot
-or point light's reference-ray weights: relMSE 1e-4 to 6e-4 at every M on
-held-out scenes) does not cost a render of 96-256 coefficients first.
+probe renders the defaults' M (:data:`FILTER_PROBE`) with the default
+weights, then -- unless that meets the target -- the M predicted as if its
+error were all series (F = 0), which is the answer when it meets the target
+and otherwise gives F and C. Where F alone misses the target the rule
+switches to ``weights="exact"`` (which removes most of F) and picks M from
+the series term C·M^k alone.  Where that prediction needs more than
+:data:`FLOOR_TEST_M` coefficients, the second probe is the first M with
+``weights="exact"`` instead: at the same M the two errors separate F and
+C·M^k directly, and a floor-bound error (a spot or point light's
+reference-ray weights: relMSE 1e-4 to 6e-4 at every M on held-out scenes)
+does not cost a render of 96-256 coefficients first.
+
+The first probe is the defaults' M, not fewer: the series' cost hardly
+depends on M up to there (on the suite's frontier runs at 640x480,
+results/frontier/quick640, 32 coefficients render in 0.93-1.07x the time
+of 16, at a third to a tenth of their relMSE), so a cheaper first probe
+only saves a render that meets fewer budgets.
 
 Where the method's defaults take the exact visibility sum instead of the
 series (a directional light, ``visibility="exact_directional"``), the
@@ -31,9 +38,10 @@ from .basis import DEFAULT_M
 #: constants fitted on results/frontier/quick640 and quick160 (pixel
 #: centres) by ``python -m experiments.error_budget --fit-only``
 FITTED = {"k": -1.62}
-#: candidate coefficients of the filter, and its probe
+#: candidate coefficients of the filter, and its probe (the defaults' M,
+#: then twice that: module doc)
 FILTER_COEFFICIENTS = (8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
-FILTER_PROBE = (16, 32)
+FILTER_PROBE = (DEFAULT_M, 2 * DEFAULT_M)
 #: the most coefficients the second probe renders with the default weights
 #: (module doc); a larger prediction tests the floor at the first probe's M
 FLOOR_TEST_M = 64
