@@ -1,7 +1,7 @@
 """``quality="auto"`` fitted on the suite and held out on generated scenes:
 ``python -m experiments.error_budget [--fit RUNS.json ...] [--fit-only]
 [--seeds N] [--size WxH] [--methods ...] [--repeats N] [--no-probe-accuracy]
-[--reference-cache DIR] [--quick]``.
+[--reference-cache DIR] [--quick]``; ``--merge DIR [DIR ...] --out OUT``.
 
 1. Fit (:func:`fit_constants`): the exponents and time model of
    :data:`integrators.core.quality_auto.FIT` from the suite's frontier runs
@@ -22,7 +22,9 @@
    setting would still pay them.
 
 Writes ``results/error_budget/``: ``choices.csv``, ``sweep.csv``,
-``budget.json`` and ``table.md``.
+``budget.json`` and ``table.md``.  ``--merge`` writes the same from runs
+already made (:func:`merge_runs`: a held-out set run in parts, or one
+method rerun after a change of its rule).
 """
 from __future__ import annotations
 
@@ -660,6 +662,60 @@ def write_results(out, choices, sweep, fit, command, skipped, settings, probes=(
     return text
 
 
+def read_rows_csv(path) -> list[dict]:
+    """The rows :func:`~episcatter.frontier_report.write_rows_csv` wrote:
+    JSON cells (dicts, lists) parsed, empty cells NaN, ``True``/``False``
+    booleans, numbers as floats, the rest as text."""
+    import csv
+
+    def cell(v: str):
+        if v == "":
+            return math.nan
+        if v in ("True", "False"):
+            return v == "True"
+        if v[:1] in "[{":
+            return json.loads(v)
+        try:
+            return float(v)
+        except ValueError:
+            return v
+
+    with open(path, newline="") as f:
+        return [{k: cell(v) for k, v in r.items()} for r in csv.DictReader(f)]
+
+
+def merge_runs(dirs, out, command: str) -> str:
+    """Merge the results of runs ``dirs`` (each one an ``--out`` of this
+    module) into ``out``: per (scene, method), the rows of the last run in
+    ``dirs`` that has them -- the same scene under a rule changed since is
+    the later run's -- with each run's settings in ``budget.json``; the
+    table's text."""
+    choices, sweep, settings, skipped = {}, {}, [], {}
+    for d in dirs:
+        with open(os.path.join(d, "budget.json")) as f:
+            s = json.load(f)["settings"]
+        settings.append({"run": d, **s})
+        for name, why in s.get("skipped", []):
+            skipped[name] = why
+        for key, rows in (("choices", choices), ("sweep", sweep)):
+            got = {}
+            for r in read_rows_csv(os.path.join(d, f"{key}.csv")):
+                got.setdefault((r["scene"], r["method"]), []).append(r)
+            rows.update(got)
+    if not choices:
+        raise ValueError(f"no choices.csv rows in {list(dirs)}: give the --out folders of "
+                         "runs of this module.")
+    os.makedirs(out, exist_ok=True)
+    kinds = {s.get("kind", KIND) for s in settings}
+    merged = {"merged_from": settings, "kind": kinds.pop() if len(kinds) == 1 else "mixed",
+              "seeds": list(dict.fromkeys(n for n, _ in choices)),
+              "methods": sorted({m for _, m in choices})}
+    return write_results(out, [r for rows in choices.values() for r in rows],
+                         [r for rows in sweep.values() for r in rows],
+                         settings[-1].get("fitted"), command,
+                         sorted(skipped.items()), merged)
+
+
 def main(argv=None) -> int:
     from episcatter.cmd_frontier import parse_size
 
@@ -681,8 +737,17 @@ def main(argv=None) -> int:
     p.add_argument("--reference-cache", default=None,
                    help="directory keeping the held-out references for later runs")
     p.add_argument("--quick", action="store_true", help="tiny smoke run")
+    p.add_argument("--merge", nargs="+", default=None, metavar="DIR",
+                   help="merge the results of these runs (their --out folders; a later one's "
+                        "scene and method replace an earlier one's) into --out")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
+    if args.merge:
+        if not args.out:
+            p.error("--merge needs --out, the folder the merged results go to.")
+        print(merge_runs(args.merge, args.out, "python -m experiments.error_budget "
+                         + " ".join(argv if argv is not None else os.sys.argv[1:])))
+        return 0
     fit = fit_constants(load_rows([f for f in args.fit if os.path.isfile(f)])) \
         if any(os.path.isfile(f) for f in args.fit) else None
     if args.fit_only:

@@ -301,3 +301,11 @@ def test_error_budget_quick(tmp_path):
     error_budget.main(args + ["--out", str(tmp_path / "b")])
     assert sorted(cache.iterdir()) == cached
     assert "best + probe reference <= 2x best" in (tmp_path / "b" / "table.md").read_text()
+    # merged: the later run's rows replace the earlier's for the same scene
+    # and method, and the table is that of either run
+    error_budget.main(["--merge", str(tmp_path / "a"), str(tmp_path / "b"),
+                       "--out", str(tmp_path / "m")])
+    merged = read_csv(tmp_path / "m" / "choices.csv")
+    assert merged == read_csv(tmp_path / "b" / "choices.csv")
+    table = lambda d: (tmp_path / d / "table.md").read_text().split("\n", 1)[1]
+    assert table("m").split("fitted constants")[0] == table("b").split("fitted constants")[0]
