@@ -86,6 +86,26 @@ def test_error_falls_with_the_number_of_coefficients():
     assert errors[2] < 5e-6, errors
 
 
+def test_more_coefficients_do_not_leak_more_behind_blockers():
+    """A spot light past box blockers (held-out seed 2010 of the 'shafts'
+    scenes, 128x96): the truncated series rings past 2/M of a shadow step,
+    and with the exact-sum band as narrow as 2/M, 32 coefficients leaked
+    light into reference-black fog (relMSE 7.1e-5, 64: 2.5e-5) where 16
+    had 1.3e-5.  The band now keeps a floor in depth
+    (rectified_map.NEAR_BAND_MIN): 1.3e-5 at every M."""
+    from episcatter import frontier as fr
+    from episcatter.reference import render_rgb
+    from experiments.random_scenes import random_scene
+
+    sc = random_scene(2010, "shafts").at_resolution(128, 96).load()
+    ref = render_rgb(sc, mi.load_dict({"type": "raymarch", "visibility": "exact", "steps": 512,
+                                       "boundary_bisections": 8}), spp=1)
+    errors = [fr.image_errors(render_rgb(sc, mi.load_dict({"type": "fourier_filter",
+                                                           "coefficients": M}), spp=1),
+                              ref)["relmse"] for M in (16, 32, 64)]
+    assert max(errors[1:]) <= 1.5 * errors[0], errors
+
+
 def test_weight_approximations_in_a_thick_medium():
     """σt = 1 (≈ 4 mean free paths across the fog box, light from behind the
     camera): transmittance varies strongly along the light rays, and the
