@@ -684,12 +684,21 @@ def read_rows_csv(path) -> list[dict]:
         return [{k: cell(v) for k, v in r.items()} for r in csv.DictReader(f)]
 
 
-def merge_runs(dirs, out, command: str) -> str:
+def scene_seed(name: str) -> int:
+    """The seed in a held-out scene's name (``"seed 2010 (...)"``, ``"user
+    2011 (...)"``)."""
+    return int(name.split()[1])
+
+
+def merge_runs(dirs, out, command: str, first_seed: int | None = None,
+               count: int | None = None) -> str:
     """Merge the results of runs ``dirs`` (each one an ``--out`` of this
     module) into ``out``: per (scene, method), the rows of the last run in
     ``dirs`` that has them -- the same scene under a rule changed since is
     the later run's -- with each run's settings in ``budget.json``; the
-    table's text."""
+    table's text.  ``first_seed``, ``count``: only the scenes of seeds from
+    ``first_seed`` on, the first ``count`` of them (the held-out set a run
+    of ``--seeds count --first-seed first_seed`` draws)."""
     choices, sweep, settings, skipped = {}, {}, [], {}
     for d in dirs:
         with open(os.path.join(d, "budget.json")) as f:
@@ -705,10 +714,22 @@ def merge_runs(dirs, out, command: str) -> str:
     if not choices:
         raise ValueError(f"no choices.csv rows in {list(dirs)}: give the --out folders of "
                          "runs of this module.")
+    names = sorted({n for n, _ in choices}, key=scene_seed)
+    if first_seed is not None:
+        names = [n for n in names if scene_seed(n) >= first_seed]
+    kept = set(names[:count] if count else names)
+    if not kept:
+        raise ValueError(f"no scene of seed {first_seed} or later in {list(dirs)}: lower "
+                         "--first-seed.")
+    choices = {k: v for k, v in choices.items() if k[0] in kept}
+    sweep = {k: v for k, v in sweep.items() if k[0] in kept}
+    last = max(scene_seed(n) for n in kept)
+    skipped = {n: w for n, w in skipped.items()
+               if (first_seed is None or scene_seed(n) >= first_seed) and scene_seed(n) < last}
     os.makedirs(out, exist_ok=True)
     kinds = {s.get("kind", KIND) for s in settings}
     merged = {"merged_from": settings, "kind": kinds.pop() if len(kinds) == 1 else "mixed",
-              "seeds": list(dict.fromkeys(n for n, _ in choices)),
+              "seeds": sorted(kept, key=scene_seed),
               "methods": sorted({m for _, m in choices})}
     return write_results(out, [r for rows in choices.values() for r in rows],
                          [r for rows in sweep.values() for r in rows],
@@ -722,8 +743,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fit", nargs="+", default=FIT_RUNS)
     p.add_argument("--fit-only", action="store_true")
-    p.add_argument("--seeds", type=int, default=24, help="held-out scenes (usable ones)")
-    p.add_argument("--first-seed", type=int, default=1000)
+    p.add_argument("--seeds", type=int, default=None,
+                   help="held-out scenes (usable ones; default 24); with --merge, keep the "
+                        "first this many from --first-seed on")
+    p.add_argument("--first-seed", type=int, default=None, help="default 1000")
     p.add_argument("--kind", default=KIND,
                    help="experiments.random_scenes kind of the scenes, or user / mixed "
                         "(experiments.user_scenes)")
@@ -746,8 +769,11 @@ def main(argv=None) -> int:
         if not args.out:
             p.error("--merge needs --out, the folder the merged results go to.")
         print(merge_runs(args.merge, args.out, "python -m experiments.error_budget "
-                         + " ".join(argv if argv is not None else os.sys.argv[1:])))
+                         + " ".join(argv if argv is not None else os.sys.argv[1:]),
+                         args.first_seed, args.seeds))
         return 0
+    args.seeds = 24 if args.seeds is None else args.seeds
+    args.first_seed = 1000 if args.first_seed is None else args.first_seed
     fit = fit_constants(load_rows([f for f in args.fit if os.path.isfile(f)])) \
         if any(os.path.isfile(f) for f in args.fit) else None
     if args.fit_only:

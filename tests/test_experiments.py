@@ -309,3 +309,6 @@ def test_error_budget_quick(tmp_path):
     assert merged == read_csv(tmp_path / "b" / "choices.csv")
     table = lambda d: (tmp_path / d / "table.md").read_text().split("\n", 1)[1]
     assert table("m").split("fitted constants")[0] == table("b").split("fitted constants")[0]
+    seed = error_budget.scene_seed(merged[0]["scene"])
+    with pytest.raises(ValueError, match="lower --first-seed"):
+        error_budget.merge_runs([tmp_path / "a"], tmp_path / "n", "", first_seed=seed + 1)
