@@ -91,8 +91,9 @@ U(β) uses the same separated kernel (prefix sums of L A_n, no filter).
 Rows with no blocker in view take U directly (closed form, no filter).
 
 Where the series is no estimate (beyond the paper; ``exact_fallback``):
-a query whose series texels within 2/M of its own depth (where the
-truncated series blurs the step) weigh more than twice its filtered sum
+a query whose series texels within 2/M of its own depth, and at least
+1/8 of the depth range (where the truncated series blurs and rings
+about the step) weigh more than twice its filtered sum
 -- fog right behind its blocker: in front of a surface seen from its
 shadowed side, along a ray grazing an occluder -- takes the exact sum
 (:func:`~integrators.fourier.rectified_map.series_unreliable`,
