@@ -15,7 +15,7 @@ does not cost a render of 96-256 coefficients first.
 
 The first probe is the defaults' M, not fewer: the series' cost hardly
 depends on M up to there (on the suite's frontier runs at 640x480,
-results/frontier/quick640, 32 coefficients render in 0.93-1.07x the time
+results/frontier/quick640, 32 coefficients render in 0.94-1.07x the time
 of 16, at a third to a tenth of their relMSE), so a cheaper first probe
 only saves a render that meets fewer budgets.
 
