@@ -691,14 +691,15 @@ def scene_seed(name: str) -> int:
 
 
 def merge_runs(dirs, out, command: str, first_seed: int | None = None,
-               count: int | None = None) -> str:
+               count: int | None = None, methods=METHODS) -> str:
     """Merge the results of runs ``dirs`` (each one an ``--out`` of this
     module) into ``out``: per (scene, method), the rows of the last run in
     ``dirs`` that has them -- the same scene under a rule changed since is
     the later run's -- with each run's settings in ``budget.json``; the
     table's text.  ``first_seed``, ``count``: only the scenes of seeds from
     ``first_seed`` on, the first ``count`` of them (the held-out set a run
-    of ``--seeds count --first-seed first_seed`` draws)."""
+    of ``--seeds count --first-seed first_seed`` draws); ``methods``: only
+    theirs."""
     choices, sweep, settings, skipped = {}, {}, [], {}
     for d in dirs:
         with open(os.path.join(d, "budget.json")) as f:
@@ -709,7 +710,8 @@ def merge_runs(dirs, out, command: str, first_seed: int | None = None,
         for key, rows in (("choices", choices), ("sweep", sweep)):
             got = {}
             for r in read_rows_csv(os.path.join(d, f"{key}.csv")):
-                got.setdefault((r["scene"], r["method"]), []).append(r)
+                if r["method"] in methods:
+                    got.setdefault((r["scene"], r["method"]), []).append(r)
             rows.update(got)
     if not choices:
         raise ValueError(f"no choices.csv rows in {list(dirs)}: give the --out folders of "
@@ -770,7 +772,7 @@ def main(argv=None) -> int:
             p.error("--merge needs --out, the folder the merged results go to.")
         print(merge_runs(args.merge, args.out, "python -m experiments.error_budget "
                          + " ".join(argv if argv is not None else os.sys.argv[1:]),
-                         args.first_seed, args.seeds))
+                         args.first_seed, args.seeds, args.methods))
         return 0
     args.seeds = 24 if args.seeds is None else args.seeds
     args.first_seed = 1000 if args.first_seed is None else args.first_seed

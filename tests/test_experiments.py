@@ -312,3 +312,5 @@ def test_error_budget_quick(tmp_path):
     seed = error_budget.scene_seed(merged[0]["scene"])
     with pytest.raises(ValueError, match="lower --first-seed"):
         error_budget.merge_runs([tmp_path / "a"], tmp_path / "n", "", first_seed=seed + 1)
+    with pytest.raises(ValueError, match="no choices.csv rows"):    # another method's only
+        error_budget.merge_runs([tmp_path / "a"], tmp_path / "n", "", methods=("raymarch",))
