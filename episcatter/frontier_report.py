@@ -122,6 +122,27 @@ def write_rows_csv(path, rows) -> None:
                         for k, v in r.items()})
 
 
+def read_rows_csv(path) -> list[dict]:
+    """The rows :func:`write_rows_csv` wrote: JSON cells (dicts, lists)
+    parsed, empty cells NaN, ``True``/``False`` booleans, numbers as
+    floats, the rest as text."""
+
+    def cell(v: str):
+        if v == "":
+            return math.nan
+        if v in ("True", "False"):
+            return v == "True"
+        if v[:1] in "[{":
+            return json.loads(v)
+        try:
+            return float(v)
+        except ValueError:
+            return v
+
+    with open(path, newline="") as f:
+        return [{k: cell(v) for k, v in r.items()} for r in csv.DictReader(f)]
+
+
 def floor_rows(rows, level: float = 1e-4) -> list[dict]:
     """Per scene x convention x method: the captures its frontier point at
     ``level`` needs (the fastest frontier setting reaching it, else the most

@@ -662,28 +662,6 @@ def write_results(out, choices, sweep, fit, command, skipped, settings, probes=(
     return text
 
 
-def read_rows_csv(path) -> list[dict]:
-    """The rows :func:`~episcatter.frontier_report.write_rows_csv` wrote:
-    JSON cells (dicts, lists) parsed, empty cells NaN, ``True``/``False``
-    booleans, numbers as floats, the rest as text."""
-    import csv
-
-    def cell(v: str):
-        if v == "":
-            return math.nan
-        if v in ("True", "False"):
-            return v == "True"
-        if v[:1] in "[{":
-            return json.loads(v)
-        try:
-            return float(v)
-        except ValueError:
-            return v
-
-    with open(path, newline="") as f:
-        return [{k: cell(v) for k, v in r.items()} for r in csv.DictReader(f)]
-
-
 def scene_seed(name: str) -> int:
     """The seed in a held-out scene's name (``"seed 2010 (...)"``, ``"user
     2011 (...)"``)."""
@@ -700,6 +678,8 @@ def merge_runs(dirs, out, command: str, first_seed: int | None = None,
     ``first_seed`` on, the first ``count`` of them (the held-out set a run
     of ``--seeds count --first-seed first_seed`` draws); ``methods``: only
     theirs."""
+    from episcatter.frontier_report import read_rows_csv
+
     choices, sweep, settings, skipped = {}, {}, [], {}
     for d in dirs:
         with open(os.path.join(d, "budget.json")) as f:
