@@ -72,6 +72,13 @@ SWEEPS = {"raymarch": [{"visibility": "exact", "steps": n}
           "minmax_epipolar": [{"initial_step": s} for s in (1, 2, 4, 8, 16, 32)]}
 
 
+def march_sweep(steps) -> list[dict]:
+    """The marcher's swept settings at these step counts (``--march-steps``:
+    a scene whose budget no count of the default sweep reaches is
+    reachable with more -- the marcher converges to the reference)."""
+    return [{"visibility": "exact", "steps": int(n)} for n in sorted(set(steps))]
+
+
 # --------------------------------------------------------------------------
 # Fit
 # --------------------------------------------------------------------------
@@ -360,7 +367,7 @@ def probe_reference_times(name, scene) -> list[dict]:
     return rows
 
 
-def run_scene(name, scene, ref, methods, repeats, log, probe_accuracy_rows=True):
+def run_scene(name, scene, ref, methods, repeats, log, probe_accuracy_rows=True, sweeps=None):
     """(choices, sweep, probe rows) of one held-out scene (module doc):
     each swept setting timed once after a warm-up; per budget the auto
     render (probe included), its chosen setting, and the fastest swept
@@ -368,7 +375,8 @@ def run_scene(name, scene, ref, methods, repeats, log, probe_accuracy_rows=True)
     fastest) timed again as medians of ``repeats`` after a warm-up, so
     that the ratios compare medians taken in one process; the probe's
     estimates against the truth (``probe_accuracy_rows``) cost three
-    full-image marches per scene."""
+    full-image marches per scene; ``sweeps``: the settings swept per method
+    (default :data:`SWEEPS`)."""
     import mitsuba as mi
 
     from episcatter import frontier as fr
@@ -393,7 +401,7 @@ def run_scene(name, scene, ref, methods, repeats, log, probe_accuracy_rows=True)
                 log(f"{name} {method} probe: {exc}")
         pts, swept = [], []
         try:
-            for setting in SWEEPS[method]:
+            for setting in (sweeps or SWEEPS)[method]:
                 props = explicit(method, setting, diag)
                 img, t = timed(scene, mi.load_dict(props), 1)
                 e = fr.image_errors(img, ref)["relmse"]
@@ -745,6 +753,8 @@ def main(argv=None) -> int:
     p.add_argument("--merge", nargs="+", default=None, metavar="DIR",
                    help="merge the results of these runs (their --out folders; a later one's "
                         "scene and method replace an earlier one's) into --out")
+    p.add_argument("--march-steps", nargs="+", type=int, default=None, metavar="N",
+                   help="the marcher's swept step counts (default 16 ... 1024)")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     if args.merge:
@@ -762,6 +772,8 @@ def main(argv=None) -> int:
         print(json.dumps(fit, indent=1))
         return 0
     size = parse_size("24x18" if args.quick else args.size)
+    sweeps = {**SWEEPS, "raymarch": march_sweep(args.march_steps)} if args.march_steps \
+        else SWEEPS
     n = 1 if args.quick else args.seeds
     repeats = 1 if args.quick else args.repeats
     out = args.out or os.path.join("results", NAME)
@@ -773,7 +785,8 @@ def main(argv=None) -> int:
                                                                else os.sys.argv[1:])
     for name, spec, ref in scenes:        # the files are rewritten after every scene
         c, s, pr = run_scene(name, spec.load(), ref, args.methods, repeats,
-                             lambda m: print(m, flush=True), not args.no_probe_accuracy)
+                             lambda m: print(m, flush=True), not args.no_probe_accuracy,
+                             sweeps)
         choices += c
         sweep += s
         probes += pr
@@ -783,7 +796,8 @@ def main(argv=None) -> int:
                               "methods": args.methods, "size": list(size), "repeats": repeats,
                               "fit": args.fit, "fitted": fit,
                               "reference": exact_description(2048) + ", pixel centres",
-                              "kind": args.kind}, probes)
+                              "kind": args.kind,
+                              "march_steps": [r["steps"] for r in sweeps["raymarch"]]}, probes)
     print(text)
     return 0
 

@@ -314,3 +314,21 @@ def test_error_budget_quick(tmp_path):
         error_budget.merge_runs([tmp_path / "a"], tmp_path / "n", "", first_seed=seed + 1)
     with pytest.raises(ValueError, match="no choices.csv rows"):    # another method's only
         error_budget.merge_runs([tmp_path / "a"], tmp_path / "n", "", methods=("raymarch",))
+
+
+def test_error_budget_sweeps_the_marcher_as_far_as_asked(tmp_path):
+    """``--march-steps``: the marcher's swept step counts (a budget no count
+    of the default sweep reaches is reachable with more steps); the run
+    records them; the module's default sweep is unchanged."""
+    from experiments import error_budget
+
+    assert error_budget.march_sweep([1024, 16, 16, 64]) == [
+        {"visibility": "exact", "steps": n} for n in (16, 64, 1024)]
+    default = list(error_budget.SWEEPS["raymarch"])
+    error_budget.main(["--quick", "--methods", "raymarch", "--no-probe-accuracy",
+                       "--march-steps", "16", "48", "--out", str(tmp_path / "r")])
+    swept = {json.loads(r["settings"])["steps"] for r in read_csv(tmp_path / "r" / "sweep.csv")}
+    assert swept == {16, 48}
+    settings = json.loads((tmp_path / "r" / "budget.json").read_text())["settings"]
+    assert settings["march_steps"] == [16, 48]
+    assert error_budget.SWEEPS["raymarch"] == default
