@@ -61,15 +61,6 @@ METHODS = ("raymarch", "epipolar_tree", "fourier_filter", "minmax_epipolar")
 #: the held-out kinds beyond experiments.random_scenes': ``user`` (experiments.user_scenes),
 #: ``mixed`` (odd seeds user-style, even seeds random ``shafts``)
 USER_KINDS = ("user", "mixed")
-#: the settings swept on each held-out scene (the frontier a choice is judged on);
-#: the tree's light rays as densities (per diagonal pixel)
-SWEEPS = {"raymarch": [{"visibility": "exact", "steps": n}
-                       for n in (16, 32, 64, 128, 256, 512, 1024)],
-          "epipolar_tree": [{"slice_spacing": s, "density": r}
-                            for s, r in itertools.product((0.5, 1.4, 4.0), (0.5, 1.4, 4.0))],
-          "fourier_filter": [{"coefficients": m} for m in (8, 16, 32, 64, 128, 256)]
-          + [{"coefficients": m, "weights": "exact"} for m in (16, 64, 256)],
-          "minmax_epipolar": [{"initial_step": s} for s in (1, 2, 4, 8, 16, 32)]}
 
 
 def march_sweep(steps) -> list[dict]:
@@ -77,6 +68,16 @@ def march_sweep(steps) -> list[dict]:
     a scene whose budget no count of the default sweep reaches is
     reachable with more -- the marcher converges to the reference)."""
     return [{"visibility": "exact", "steps": int(n)} for n in sorted(set(steps))]
+
+
+#: the settings swept on each held-out scene (the frontier a choice is judged on);
+#: the tree's light rays as densities (per diagonal pixel)
+SWEEPS = {"raymarch": march_sweep((16, 32, 64, 128, 256, 512, 1024)),
+          "epipolar_tree": [{"slice_spacing": s, "density": r}
+                            for s, r in itertools.product((0.5, 1.4, 4.0), (0.5, 1.4, 4.0))],
+          "fourier_filter": [{"coefficients": m} for m in (8, 16, 32, 64, 128, 256)]
+          + [{"coefficients": m, "weights": "exact"} for m in (16, 64, 256)],
+          "minmax_epipolar": [{"initial_step": s} for s in (1, 2, 4, 8, 16, 32)]}
 
 
 # --------------------------------------------------------------------------
