@@ -1,7 +1,8 @@
 """``quality="auto"`` fitted on the suite and held out on generated scenes:
 ``python -m experiments.error_budget [--fit RUNS.json ...] [--fit-only]
 [--seeds N] [--size WxH] [--methods ...] [--repeats N] [--no-probe-accuracy]
-[--reference-cache DIR] [--quick]``; ``--merge DIR [DIR ...] --out OUT``.
+[--reference-cache DIR] [--march-steps N ...] [--quick]``; ``--merge DIR [DIR ...]
+--out OUT``.
 
 1. Fit (:func:`fit_constants`): the exponents and time model of
    :data:`integrators.core.quality_auto.FIT` from the suite's frontier runs
